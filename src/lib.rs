@@ -1,1 +1,22 @@
+//! MAVLink ↔ Futaba LJ9DA41 bridge.
+//!
+//! Layers, bottom up:
+//! - [`protocol`]: the LJ9DA41 RS485 protocol as pure data (no I/O, no clock).
+//! - [`bus`]: the sans-IO bus master that schedules commands and telemetry on one RS485 bus,
+//!   and the thin tokio driver that runs it over a serial port.
+//! - [`config`]: mapping files (TOML) and the autopilot-output → servo-position mapping.
+//! - [`mavlink`]: the MAVLink side: outputs in, servo health out.
+//! - [`runtime`]: `lj9da-bridge run`, the tokio shell joining MAVLink and the buses.
+//! - [`simulation`]: `lj9da-bridge sitl`, the whole chain with simulated servos and autopilot.
+
+pub mod bus;
+pub mod commission;
+pub mod config;
+#[doc(hidden)]
+pub mod fuzz_targets;
+pub mod deploy;
+pub mod mavlink;
 pub mod protocol;
+pub mod record;
+pub mod runtime;
+pub mod simulation;

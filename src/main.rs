@@ -1,10 +1,23 @@
-//! `lj9da-bridge`: MAVLink autopilot outputs → Futaba LJ9DA41 servos on RS485, and servo health back.
+//! `lj9da-bridge`: MAVLink autopilot outputs → Futaba LJ9DA41 servos on RS485, and servo health
+//! back to the ground station.
 
 use clap::{Parser, Subcommand};
+use lj9da_bridge::commission::cli::Commission;
+use lj9da_bridge::deploy::DeployCommand;
+use lj9da_bridge::record::RecordCommand;
+use lj9da_bridge::config::Config;
+use lj9da_bridge::runtime;
+use lj9da_bridge::simulation::{self, SitlOptions};
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "lj9da-bridge", version, about, long_about = None)]
+#[command(
+    name = "lj9da-bridge",
+    version,
+    about = "Bridge between MAVLink autopilots (PX4, ArduPilot) and Futaba LJ9DA41 RS485 linear servos",
+    after_help = "Examples:\n  lj9da-bridge sitl                          # the whole chain in simulation, no hardware\n  lj9da-bridge check --config mappings/ardupilot-plane.toml\n  lj9da-bridge run --config /etc/lj9da-bridge/plane.toml\n\nLogs: set RUST_LOG (e.g. RUST_LOG=lj9da_bridge=debug)."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -12,16 +25,149 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Run the whole chain in simulation: simulated autopilot → bridge → simulated servos.
-    Sitl,
+    /// Run the bridge: autopilot outputs over MAVLink → servos on the buses of the mapping file.
+    Run {
+        /// The mapping file (see mappings/).
+        #[arg(long, short)]
+        config: PathBuf,
+    },
+    /// Validate a mapping file and print the resolved table.
+    Check {
+        #[arg(long, short)]
+        config: PathBuf,
+    },
+    /// The whole chain in simulation: simulated servos on pseudo-terminals, a simulated
+    /// autopilot (or a real autopilot SITL), the bridge between them over MAVLink/UDP.
+    #[command(
+        after_help = "Examples:\n  lj9da-bridge sitl --seconds 20\n  lj9da-bridge sitl --config mappings/ardupilot-plane.toml --autopilot udpin:0.0.0.0:14560\n      (ArduPilot SITL: sim_vehicle.py -v ArduPlane --out=udp:127.0.0.1:14560,\n       or arduplane --serial1=udpclient:127.0.0.1:14560)\n  lj9da-bridge sitl --config mappings/px4-vtol.toml --autopilot udpin:0.0.0.0:14540\n      (PX4 SITL: its onboard link sends to UDP 14540)\n\nThe bridge's telemetry is served on udpout:127.0.0.1:14550 for QGroundControl or MAVProxy."
+    )]
+    Sitl {
+        /// An airframe's mapping file; its buses get simulated servos instead of their ports.
+        #[arg(long, short)]
+        config: Option<PathBuf>,
+        /// A real autopilot's MAVLink address (replaces the simulated autopilot).
+        #[arg(long)]
+        autopilot: Option<String>,
+        /// Stop after this many seconds (default: run until Ctrl-C).
+        #[arg(long)]
+        seconds: Option<f64>,
+        /// Where to serve telemetry for a ground station.
+        #[arg(long)]
+        gcs: Option<String>,
+        /// Print the table once a second instead of redrawing it in place.
+        #[arg(long)]
+        plain: bool,
+    },
+    /// Look at a flight record: summary, plots, CSV.
+    Record {
+        #[command(subcommand)]
+        cmd: RecordCommand,
+    },
+    /// Installation on the companion computer: systemd unit, udev rule, latency check.
+    Deploy {
+        #[command(subcommand)]
+        cmd: DeployCommand,
+    },
+    /// Commissioning: scan, info, set, move, force, factory-reset, monitor.
+    #[command(flatten)]
+    Commission(Commission),
+}
+
+fn init_logging() {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| EnvFilter::new("warn,lj9da_bridge=info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .init();
+}
+
+fn load(path: &Path) -> Result<Config, ExitCode> {
+    Config::load(path).map_err(|e| {
+        eprintln!("error: {e}");
+        ExitCode::from(2)
+    })
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    match cli.command {
-        Command::Sitl => {
-            eprintln!("lj9da-bridge: the simulated chain is not wired yet; only the protocol core exists");
-            ExitCode::from(2)
+    init_logging();
+    let rt = match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("error: cannot start the async runtime: {e}");
+            return ExitCode::FAILURE;
         }
+    };
+    match cli.command {
+        Command::Check { config } => match load(&config) {
+            Ok(cfg) => {
+                println!("{}: ok", config.display());
+                print!("{}", cfg.resolved_table());
+                ExitCode::SUCCESS
+            }
+            Err(code) => code,
+        },
+        Command::Run { config } => {
+            let cfg = match load(&config) {
+                Ok(cfg) => cfg,
+                Err(code) => return code,
+            };
+            rt.block_on(async {
+                let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+                tokio::spawn(async move {
+                    simulation::shutdown_signal().await;
+                    tracing::info!("stop requested");
+                    let _ = stop_tx.send(true);
+                });
+                let opts = runtime::RunOptions {
+                    record_dir: Some(cfg.record.dir_for(Some(&config))),
+                    check_latency: true,
+                    ..Default::default()
+                };
+                match runtime::run(cfg, opts, stop_rx).await {
+                    Ok(()) => ExitCode::SUCCESS,
+                    Err(e) => {
+                        eprintln!("error: {e}");
+                        ExitCode::FAILURE
+                    }
+                }
+            })
+        }
+        Command::Sitl {
+            config,
+            autopilot,
+            seconds,
+            gcs,
+            plain,
+        } => {
+            let loaded = match config.as_ref().map(|p| load(p)).transpose() {
+                Ok(c) => c,
+                Err(code) => return code,
+            };
+            let opts = SitlOptions {
+                config: loaded,
+                config_path: config,
+                autopilot,
+                seconds,
+                gcs,
+                plain,
+            };
+            match rt.block_on(simulation::run(opts)) {
+                Ok(_) => ExitCode::SUCCESS,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+        Command::Record { cmd } => lj9da_bridge::record::cli::run(cmd),
+        Command::Deploy { cmd } => lj9da_bridge::deploy::run(cmd),
+        Command::Commission(command) => lj9da_bridge::commission::cli::run(&rt, command),
     }
 }

@@ -1,0 +1,577 @@
+//! Bus-master benchmark: the real tokio driver over a pseudo-terminal against the simulated
+//! LJ9DA41 bus (which keeps wire time), at 115 200 and 460 800 bit/s with 1, 4 and 8 servos,
+//! goals changing at 50 Hz and as fast as possible. Prints one table.
+//!
+//! Every number comes from the simulator's record of the line (host packets with the instant its
+//! `read()` returned their first byte; replies with the instants their bytes were complete on the
+//! wire), in the same process and on the same clock as the `Instant` taken just before each
+//! `set_goal`:
+//! - command frames/s and polls/s: long packets and 42–59 requests the line carried;
+//! - telemetry Hz/servo: 42–59 replies per servo per second (the slowest servo's rate);
+//! - wire %: wire time of every host and reply byte over the elapsed time;
+//! - limit %: the fraction of the wire-time limit of protocol spec section 8 that the bus master
+//!   uses: time the line carries bytes, plus each servo's own turnaround between the end of a
+//!   request and the start of its reply (section 8 counts it in a poll's cost); the rest is time
+//!   the bus master left the line idle;
+//! - latency: from `set_goal` to the first byte of the first long packet carrying that goal
+//!   (goals replaced before reaching the wire are counted as superseded, not timed). A goal that
+//!   arrives while a reply is awaited is "busy": its latency is compared with the time left
+//!   until that reply's last byte ("excess" = latency − that time). Otherwise it is "idle".
+//!
+//! Run: `cargo bench --bench bus` (about a minute and a half).
+
+use lj9da_bridge::bus::{
+    BusConfig, BusHandle, ForceState, Goal, Health, ServoSetup, ShutdownForce, spawn_bus,
+};
+use lj9da_bridge::protocol::{BaudRate, MmCenti, ServoId};
+use lj9da_sim::{BusEvent as SimEvent, HostPacket, SimBus, SimConfig};
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+const WARM_UP: Duration = Duration::from_millis(1000);
+const WINDOW: Duration = Duration::from_millis(3000);
+/// Period of the "as fast as possible" goal source: faster than any bus here can carry frames.
+const MAX_RATE_PERIOD: Duration = Duration::from_micros(500);
+
+#[derive(Clone, Copy)]
+enum Rate {
+    Hz50,
+    Max,
+}
+
+#[derive(Clone, Copy)]
+struct Scenario {
+    baud: BaudRate,
+    servos: u8,
+    rate: Rate,
+    /// Telemetry limited to one poll per servo per this interval: an idle bus.
+    quiet_telemetry: Option<Duration>,
+}
+
+#[derive(Default)]
+struct Row {
+    label: String,
+    frames_s: f64,
+    polls_s: f64,
+    telemetry_hz_min: f64,
+    wire_fraction: f64,
+    utilisation: f64,
+    latencies_us: Vec<f64>,
+    idle_us: Vec<f64>,
+    busy_excess_us: Vec<f64>,
+    /// Goals set while a request whose reply never came was in flight.
+    behind_timeout: u64,
+    goals_set: u64,
+    goals_on_wire: u64,
+    superseded: u64,
+    timeouts: u64,
+    collisions: u64,
+}
+
+struct GoalRecord {
+    servo: u8,
+    value: i16,
+    at: Instant,
+}
+
+fn main() {
+    let scenarios: Vec<Scenario> = [BaudRate::B115200, BaudRate::B460800]
+        .into_iter()
+        .flat_map(|baud| {
+            [1u8, 4, 8].into_iter().flat_map(move |servos| {
+                [Rate::Hz50, Rate::Max]
+                    .into_iter()
+                    .map(move |rate| Scenario {
+                        baud,
+                        servos,
+                        rate,
+                        quiet_telemetry: None,
+                    })
+            })
+        })
+        .chain([BaudRate::B115200, BaudRate::B460800].map(|baud| Scenario {
+            baud,
+            servos: 4,
+            rate: Rate::Hz50,
+            quiet_telemetry: Some(Duration::from_secs(1)),
+        }))
+        .collect();
+
+    let runtime = match tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("cannot start a tokio runtime: {e}");
+            return;
+        }
+    };
+    let mut rows = Vec::new();
+    for s in scenarios {
+        match runtime.block_on(run(s)) {
+            Ok(row) => {
+                eprintln!("done: {}", row.label);
+                rows.push(row);
+            }
+            Err(e) => eprintln!("scenario failed: {e}"),
+        }
+    }
+    print_table(&rows);
+}
+
+fn id(n: u8) -> ServoId {
+    ServoId::new(n).unwrap_or_else(|_| unreachable!("ids 1–8"))
+}
+
+/// The k-th goal of a servo: a triangle in ±2 mm, every value distinct from its neighbours and
+/// unique within 800 goals, so a goal is recognised on the wire by its value.
+fn goal_value(k: u64) -> i16 {
+    let phase = (k % 800) as i16;
+    if phase < 400 {
+        phase - 200
+    } else {
+        600 - phase
+    }
+}
+
+async fn run(s: Scenario) -> Result<Row, String> {
+    let bps = s.baud.bits_per_second();
+    let ids: Vec<u8> = (1..=s.servos).collect();
+    let sim = SimBus::spawn_pty(SimConfig {
+        ids: ids.clone(),
+        baud: bps,
+        ..SimConfig::default()
+    })
+    .map_err(|e| format!("simulated bus: {e}"))?;
+    let mut cfg = BusConfig::new(
+        "bench",
+        s.baud,
+        ids.iter()
+            .map(|&n| ServoSetup::new(id(n), format!("s{n}")))
+            .collect(),
+    );
+    if let Some(interval) = s.quiet_telemetry {
+        cfg.telemetry_min_interval = interval;
+        cfg.verify_interval = interval;
+    }
+    let bus = spawn_bus(cfg, sim.path());
+
+    // Start-up: every servo online, force on at 0.
+    wait(&bus, |st| {
+        st.servos.iter().all(|s| s.health == Health::Online)
+    })
+    .await?;
+    for &n in &ids {
+        bus.set_goal(id(n), Goal::Position(MmCenti(goal_value(0))));
+    }
+    wait(&bus, |st| {
+        st.servos.iter().all(|s| s.force == ForceState::On)
+    })
+    .await?;
+    tokio::time::sleep(Duration::from_millis(200)).await;
+
+    let events = sim.handle().subscribe();
+    let stop = Arc::new(AtomicBool::new(false));
+    let producer = {
+        let bus = bus.clone();
+        let stop = Arc::clone(&stop);
+        let ids = ids.clone();
+        let period = match s.rate {
+            Rate::Hz50 => Duration::from_millis(20),
+            Rate::Max => MAX_RATE_PERIOD,
+        };
+        std::thread::spawn(move || produce(&bus, &ids, period, &stop))
+    };
+    tokio::time::sleep(WARM_UP).await;
+    let t0 = Instant::now();
+    let c0 = bus.status().counters;
+    let stats0 = sim.handle().stats();
+    tokio::time::sleep(WINDOW).await;
+    let t1 = Instant::now();
+    let c1 = bus.status().counters;
+    let stats1 = sim.handle().stats();
+    stop.store(true, Ordering::SeqCst);
+    let goals = producer
+        .join()
+        .map_err(|_| "goal producer panicked".to_string())?;
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    bus.shutdown(ShutdownForce::AsIs).await;
+    sim.shutdown();
+    let events: Vec<SimEvent> = events.try_iter().collect();
+
+    let secs = (t1 - t0).as_secs_f64();
+    let byte_s = 10.0 / f64::from(bps);
+    let mut row = Row {
+        label: format!(
+            "{:>6} {} {}",
+            bps,
+            s.servos,
+            match (s.rate, s.quiet_telemetry) {
+                (_, Some(_)) => "50 Hz, idle bus",
+                (Rate::Hz50, None) => "50 Hz",
+                (Rate::Max, None) => "max",
+            }
+        ),
+        ..Row::default()
+    };
+    let in_window = |t: Instant| t >= t0 && t < t1;
+
+    // The line: host packets and replies in the window.
+    let mut busy_wire_s = 0.0;
+    let byte = Duration::from_secs_f64(byte_s);
+    // Intervals the line is in use: host packets, replies, and each servo's turnaround.
+    let mut in_use: Vec<(Instant, Instant)> = Vec::new();
+    let mut last_request_end: HashMap<u8, Instant> = HashMap::new();
+    let mut telemetry_per_servo: HashMap<u8, u64> = HashMap::new();
+    let mut longs: Vec<(Instant, Vec<(u8, i16)>)> = Vec::new();
+    // (request first byte, id) and (id, reply last byte) for busy/idle classification.
+    let mut requests: Vec<(Instant, u8)> = Vec::new();
+    let mut replies: Vec<(Instant, u8, Instant)> = Vec::new();
+    for e in &events {
+        match e {
+            SimEvent::Packet(p) => {
+                if in_window(p.first_byte_at) {
+                    busy_wire_s += p.bytes.len() as f64 * byte_s;
+                }
+                let len = u32::try_from(p.bytes.len()).unwrap_or(u32::MAX);
+                let start = p
+                    .completed_at
+                    .checked_sub(byte * len)
+                    .unwrap_or(p.completed_at);
+                in_use.push((start, p.completed_at));
+                match &p.packet {
+                    HostPacket::Long(_) => {
+                        if in_window(p.first_byte_at) {
+                            row.frames_s += 1.0;
+                        }
+                        longs.push((p.first_byte_at, p.packet.goal_positions()));
+                    }
+                    HostPacket::Short(sp) => {
+                        if sp.flag & 0x0F == 0x09 && in_window(p.first_byte_at) {
+                            row.polls_s += 1.0;
+                        }
+                        if sp.flag & 0x0F != 0 {
+                            requests.push((p.first_byte_at, sp.id));
+                            last_request_end.insert(sp.id, p.completed_at);
+                        }
+                    }
+                }
+            }
+            SimEvent::Reply(r) => {
+                replies.push((r.first_byte_at, r.id, r.last_byte_at));
+                let start = r.first_byte_at.checked_sub(byte).unwrap_or(r.first_byte_at);
+                in_use.push((start, r.last_byte_at));
+                if let Some(request_end) = last_request_end.remove(&r.id)
+                    && request_end <= start
+                {
+                    in_use.push((request_end, start));
+                }
+                if in_window(r.first_byte_at) {
+                    busy_wire_s += r.bytes.len() as f64 * byte_s;
+                    if r.bytes.get(4) == Some(&0x2A) && r.bytes.len() == 26 {
+                        *telemetry_per_servo.entry(r.id).or_default() += 1;
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    row.frames_s /= secs;
+    row.polls_s /= secs;
+    row.wire_fraction = busy_wire_s / secs;
+    row.utilisation = union_within(&mut in_use, t0, t1).as_secs_f64() / secs;
+    row.telemetry_hz_min = ids
+        .iter()
+        .map(|n| telemetry_per_servo.get(n).copied().unwrap_or(0) as f64 / secs)
+        .fold(f64::INFINITY, f64::min);
+
+    // Latency: each goal set in the window to the first long packet carrying it.
+    let mut by_servo_value: HashMap<(u8, i16), Vec<usize>> = HashMap::new();
+    for (i, g) in goals.iter().enumerate() {
+        by_servo_value
+            .entry((g.servo, g.value))
+            .or_default()
+            .push(i);
+    }
+    let mut first_on_wire: Vec<Option<Instant>> = vec![None; goals.len()];
+    for (at, entries) in &longs {
+        for &(vid, value) in entries {
+            let Some(candidates) = by_servo_value.get(&(vid, value)) else {
+                continue;
+            };
+            // The newest goal with this value set before the packet's first byte.
+            if let Some(&i) = candidates.iter().rev().find(|&&i| goals[i].at < *at)
+                && first_on_wire[i].is_none()
+            {
+                first_on_wire[i] = Some(*at);
+            }
+        }
+    }
+    for (i, g) in goals.iter().enumerate() {
+        if !in_window(g.at) {
+            continue;
+        }
+        row.goals_set += 1;
+        let Some(first) = first_on_wire[i] else {
+            continue;
+        };
+        row.goals_on_wire += 1;
+        let latency = first.saturating_duration_since(g.at);
+        let us = latency.as_secs_f64() * 1e6;
+        row.latencies_us.push(us);
+        // Was a reply awaited when the goal was set? The newest request read before it, and
+        // the end of its reply (a reply belongs to a request if it starts before the next one).
+        let i = requests.partition_point(|(at, _)| *at <= g.at);
+        let awaited = i.checked_sub(1).map(|i| {
+            let (req_at, rid) = requests[i];
+            let next = requests.get(i + 1).map(|r| r.0);
+            let from = replies.partition_point(|(first, _, _)| *first <= req_at);
+            let reply = replies[from..]
+                .iter()
+                .take_while(|(first, _, _)| next.is_none_or(|n| *first < n))
+                .find(|(_, id, _)| *id == rid)
+                .map(|(_, _, last)| *last);
+            (req_at, reply)
+        });
+        match awaited {
+            Some((_, Some(end))) if end > g.at => {
+                let remaining = end.saturating_duration_since(g.at).as_secs_f64() * 1e6;
+                row.busy_excess_us.push(us - remaining);
+            }
+            Some((req_at, None)) if g.at < req_at + Duration::from_millis(20) => {
+                row.behind_timeout += 1;
+            }
+            _ => row.idle_us.push(us),
+        }
+    }
+    row.superseded = c1.goals_superseded - c0.goals_superseded;
+    row.timeouts = c1.timeouts - c0.timeouts;
+    row.collisions = stats1.collisions - stats0.collisions;
+    Ok(row)
+}
+
+/// Total length of the union of `intervals`, clipped to `[t0, t1)`.
+fn union_within(intervals: &mut [(Instant, Instant)], t0: Instant, t1: Instant) -> Duration {
+    intervals.sort_by_key(|&(start, _)| start);
+    let mut total = Duration::ZERO;
+    let mut covered_to = t0;
+    for &(start, end) in intervals.iter() {
+        let start = start.max(covered_to);
+        let end = end.min(t1);
+        if end > start {
+            total += end - start;
+            covered_to = end;
+        }
+    }
+    total
+}
+
+/// Set a new goal for every servo each `period`, until `stop`; returns what was set and when.
+fn produce(bus: &BusHandle, ids: &[u8], period: Duration, stop: &AtomicBool) -> Vec<GoalRecord> {
+    let mut out = Vec::new();
+    let mut next = Instant::now();
+    let mut k = 1u64;
+    while !stop.load(Ordering::SeqCst) {
+        for &n in ids {
+            let value = goal_value(k);
+            let at = Instant::now();
+            bus.set_goal(id(n), Goal::Position(MmCenti(value)));
+            out.push(GoalRecord {
+                servo: n,
+                value,
+                at,
+            });
+        }
+        k += 1;
+        next += period;
+        let now = Instant::now();
+        if next > now {
+            std::thread::sleep(next - now);
+        } else {
+            next = now;
+        }
+    }
+    out
+}
+
+async fn wait(
+    bus: &BusHandle,
+    done: impl Fn(&lj9da_bridge::bus::BusStatus) -> bool,
+) -> Result<(), String> {
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while Instant::now() < deadline {
+        if done(&bus.status()) {
+            return Ok(());
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    Err(format!("bus did not start: {:#?}", bus.status()))
+}
+
+fn percentile(sorted: &[f64], p: f64) -> Option<f64> {
+    if sorted.is_empty() {
+        return None;
+    }
+    let rank = ((p / 100.0) * (sorted.len() - 1) as f64).round() as usize;
+    sorted.get(rank.min(sorted.len() - 1)).copied()
+}
+
+fn fmt_us(v: Option<f64>) -> String {
+    match v {
+        Some(us) if us >= 10_000.0 => format!("{:.1}ms", us / 1000.0),
+        Some(us) => format!("{us:.0}"),
+        None => "–".into(),
+    }
+}
+
+/// A latency for a sentence: "85 µs", "12.3 ms".
+fn fmt_latency(v: Option<f64>) -> String {
+    match v {
+        Some(us) if us.abs() >= 1000.0 => format!("{:.2} ms", us / 1000.0),
+        Some(us) => format!("{us:.0} µs"),
+        None => "–".into(),
+    }
+}
+
+fn print_table(rows: &[Row]) {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|m| m.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    println!();
+    println!("Bus master vs simulated LJ9DA41 bus over a pty ({cores} cores, {cpu})");
+    println!(
+        "window {:.1} s after {:.1} s warm-up; turnaround allowance 2 ms; latency in µs",
+        WINDOW.as_secs_f64(),
+        WARM_UP.as_secs_f64()
+    );
+    println!();
+    println!(
+        "{:<27} {:>8} {:>7} {:>9} {:>6} {:>7} {:>7} {:>7} {:>7} {:>8} {:>9} {:>11} {:>5} {:>5}",
+        "bit/s N goals",
+        "frames/s",
+        "polls/s",
+        "telem Hz",
+        "wire %",
+        "limit %",
+        "p50",
+        "p99",
+        "max",
+        "idle p50",
+        "busy exc",
+        "on wire",
+        "t/o",
+        "coll"
+    );
+    println!(
+        "{:<27} {:>8} {:>7} {:>9} {:>6} {:>7} {:>7} {:>7} {:>7} {:>8} {:>9} {:>11} {:>5} {:>5}",
+        "", "", "", "/servo", "", "", "", "", "", "", "max", "/set", "", ""
+    );
+    for r in rows {
+        let mut all = r.latencies_us.clone();
+        all.sort_by(f64::total_cmp);
+        let mut idle = r.idle_us.clone();
+        idle.sort_by(f64::total_cmp);
+        let busy_max = r
+            .busy_excess_us
+            .iter()
+            .copied()
+            .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
+        println!(
+            "{:<27} {:>8.1} {:>7.1} {:>9.1} {:>5.1}% {:>6.1}% {:>7} {:>7} {:>7} {:>8} {:>9} {:>11} {:>5} {:>5}",
+            r.label,
+            r.frames_s,
+            r.polls_s,
+            r.telemetry_hz_min,
+            r.wire_fraction * 100.0,
+            r.utilisation * 100.0,
+            fmt_us(percentile(&all, 50.0)),
+            fmt_us(percentile(&all, 99.0)),
+            fmt_us(all.last().copied()),
+            fmt_us(percentile(&idle, 50.0)),
+            fmt_us(busy_max),
+            format!("{}/{}", r.goals_on_wire, r.goals_set),
+            r.timeouts,
+            r.collisions,
+        );
+    }
+    println!();
+    println!("Columns: telem Hz/servo = full telemetry (registers 42–59) of the slowest servo;");
+    println!(
+        "wire % = wire time of all bytes / elapsed; limit % = share of the section-8 wire-time limit"
+    );
+    println!(
+        "used (bytes on the line + the servos' own reply turnaround; the rest is idle line); idle p50 = latency of"
+    );
+    println!(
+        "goals set with no reply awaited; busy exc max = worst (latency − time left of the reply in"
+    );
+    println!(
+        "flight); on wire/set = goals seen in a long packet / goals set (the rest were superseded);"
+    );
+    println!("t/o = reply timeouts; coll = collisions on the line.");
+    println!();
+    println!(
+        "Targets (anchor: ArduPilot Volz at 115 200 bit/s, 4 servos: ~128 commands/s, ~10 Hz telemetry):"
+    );
+    for r in rows {
+        if r.label.trim_start().starts_with("115200 4 50 Hz") && !r.label.contains("idle") {
+            let all_on_wire = r.goals_on_wire == r.goals_set;
+            println!(
+                "  115 200, 4 servos, 50 Hz: every goal on the wire: {} ({}/{}); telemetry ≥ 60 Hz: {} ({:.1}); limit ≥ 90 %: {} ({:.1} %)",
+                ok(all_on_wire),
+                r.goals_on_wire,
+                r.goals_set,
+                ok(r.telemetry_hz_min >= 60.0),
+                r.telemetry_hz_min,
+                ok(r.utilisation >= 0.90),
+                r.utilisation * 100.0
+            );
+        }
+    }
+    let mut idle_all: Vec<f64> = rows
+        .iter()
+        .filter(|r| r.label.contains("idle"))
+        .flat_map(|r| r.idle_us.iter().copied())
+        .collect();
+    idle_all.sort_by(f64::total_cmp);
+    let idle_p50 = percentile(&idle_all, 50.0);
+    println!(
+        "  idle-bus latency p50 ≤ 100 µs: {} ({} over {} goals of the idle-bus rows)",
+        ok(idle_p50.is_some_and(|v| v <= 100.0)),
+        fmt_latency(idle_p50),
+        idle_all.len()
+    );
+    let worst_excess = rows
+        .iter()
+        .flat_map(|r| r.busy_excess_us.iter().copied())
+        .fold(f64::NEG_INFINITY, f64::max);
+    println!(
+        "  busy-bus latency ≤ time left of the poll in flight + 0.5 ms: {} (worst excess {})",
+        ok(worst_excess <= 500.0),
+        fmt_latency(Some(worst_excess))
+    );
+    let worst_util = rows
+        .iter()
+        .filter(|r| !r.label.contains("idle"))
+        .map(|r| r.utilisation)
+        .fold(f64::INFINITY, f64::min);
+    println!(
+        "  limit ≥ 90 % whenever there is work (every row but the idle-bus ones): {} (lowest {:.1} %)",
+        ok(worst_util >= 0.90),
+        worst_util * 100.0
+    );
+}
+
+fn ok(b: bool) -> &'static str {
+    if b { "yes" } else { "NO" }
+}

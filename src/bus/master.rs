@@ -1,0 +1,638 @@
+//! The sans-IO bus master: decides what one RS485 bus carries next.
+//!
+//! In the style of quinn-proto, it is a deterministic state machine. The caller hands it new
+//! goals ([`BusMaster::set_goal`]), the bytes that came back ([`BusMaster::handle_input`]) and
+//! the passing of time ([`BusMaster::handle_timeout`]), always with the current time; it answers
+//! with the next packet to write ([`BusMaster::poll_transmit`]), the next deadline
+//! ([`BusMaster::poll_timeout`]), events ([`BusMaster::poll_event`]) and a status snapshot.
+//!
+//! It never does I/O and never reads a clock: every time it uses was handed to it. It never
+//! panics, whatever bytes arrive.
+//!
+//! The schedule, in priority order, whenever no reply is pending:
+//! 1. a long packet, when the position goal of any commanded servo differs from the one on
+//!    the wire: one frame with an entry for every commanded servo;
+//! 2. a force write (answered with registers 30–41 to confirm it), before a servo's first
+//!    goal or when a goal asks for force OFF or brake;
+//! 3. one servo's next read, round-robin: start-up reads, the telemetry poll (registers
+//!    42–59), a periodic read-back of registers 30–41, or a probe of an offline servo.
+//!
+//! A long packet expects no reply, so the request behind it follows at once; the reply timeout
+//! of that request counts from the moment the bytes queued before it have left the wire. A
+//! long packet is never queued more than one frame ahead of the wire: goals that arrive while
+//! the wire is busy are coalesced in the bus master, not queued in the port.
+
+use super::config::BusConfig;
+use super::event::BusEvent;
+use super::goal::{Goal, ShutdownForce};
+use super::servo::{Phase, SentGoal, Servo, Transaction, ms10_ceil};
+use super::status::{BusCounters, BusStatus, ForceState};
+use super::transmit::{Transmit, TxKind};
+use crate::protocol::packet::ExpectedReply;
+use crate::protocol::{
+    DecodeError, Decoded, Decoder, ForceMode, GoalEntry, LongPacket, Ms10, ReturnPacket, ServoId,
+    ShortPacket,
+};
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+/// Events kept at most when nobody takes them; the oldest are dropped beyond it.
+const MAX_QUEUED_EVENTS: usize = 1024;
+
+/// A request on the wire whose reply is awaited.
+#[derive(Debug, Clone, Copy)]
+struct Pending {
+    index: usize,
+    tx: Transaction,
+    expected: ExpectedReply,
+    deadline: Instant,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Shutdown {
+    leave: ShutdownForce,
+    /// Servos already given their final packet (for [`ShutdownForce::Off`]).
+    next: usize,
+    done: bool,
+}
+
+/// The bus master of one RS485 bus; see the module docs.
+#[derive(Debug)]
+pub struct BusMaster {
+    cfg: BusConfig,
+    servos: Vec<Servo>,
+    decoder: Decoder,
+    pending: Option<Pending>,
+    /// When the bytes already handed out will have left the wire.
+    wire_free_at: Instant,
+    /// The servo that had the last round-robin turn.
+    cursor: usize,
+    events: VecDeque<BusEvent>,
+    counters: BusCounters,
+    /// The latest time handed in.
+    now: Instant,
+    port_open: bool,
+    /// Send a long packet with every commanded servo even if no goal changed.
+    resend_all: bool,
+    shutdown: Option<Shutdown>,
+    /// Something a status snapshot shows changed since [`BusMaster::take_changed`].
+    changed: bool,
+}
+
+impl BusMaster {
+    /// A bus master for `cfg`; every servo starts with its identity read. A servo ID listed
+    /// twice is kept once (the first entry).
+    pub fn new(cfg: BusConfig, now: Instant) -> Self {
+        let mut servos: Vec<Servo> = Vec::with_capacity(cfg.servos.len());
+        for setup in &cfg.servos {
+            if servos.iter().all(|s| s.id() != setup.id) {
+                servos.push(Servo::new(setup.clone()));
+            }
+        }
+        let cursor = servos.len().saturating_sub(1);
+        BusMaster {
+            cfg,
+            servos,
+            decoder: Decoder::new(),
+            pending: None,
+            wire_free_at: now,
+            cursor,
+            events: VecDeque::new(),
+            counters: BusCounters::default(),
+            now,
+            port_open: true,
+            resend_all: false,
+            shutdown: None,
+            changed: true,
+        }
+    }
+
+    pub fn config(&self) -> &BusConfig {
+        &self.cfg
+    }
+
+    fn touch(&mut self, now: Instant) {
+        if now > self.now {
+            self.now = now;
+        }
+    }
+
+    fn index_of(&self, id: ServoId) -> Option<usize> {
+        self.servos.iter().position(|s| s.id() == id)
+    }
+
+    /// The newest goal for servo `id`. It replaces a goal that has not reached the wire yet. A
+    /// position goal is clamped to the servo's limits when it is sent. An ID not on this bus is
+    /// ignored (and counted).
+    pub fn set_goal(&mut self, id: ServoId, goal: Goal, now: Instant) {
+        self.touch(now);
+        let Some(i) = self.index_of(id) else {
+            self.counters.goals_unknown_id += 1;
+            return;
+        };
+        self.counters.goals_received += 1;
+        self.changed = true;
+        let s = &mut self.servos[i];
+        let waiting = s.unsent_position();
+        s.desired = Some(goal);
+        match (waiting, s.unsent_position()) {
+            (Some(old), Some(new)) if old == new => self.counters.goals_unchanged += 1,
+            (Some(_), _) => {
+                self.counters.goals_superseded += 1;
+                if matches!(goal, Goal::Position(_)) && s.unsent_position().is_none() {
+                    self.counters.goals_unchanged += 1;
+                }
+            }
+            (None, None) if matches!(goal, Goal::Position(_)) => self.counters.goals_unchanged += 1,
+            _ => {}
+        }
+    }
+
+    /// Bytes read from the port.
+    pub fn handle_input(&mut self, bytes: &[u8], now: Instant) {
+        self.touch(now);
+        self.counters.bytes_received += bytes.len() as u64;
+        self.decoder.push(bytes);
+        self.drain_decoder(now);
+    }
+
+    fn drain_decoder(&mut self, now: Instant) {
+        while let Some(item) = self.decoder.poll() {
+            match item {
+                Ok(Decoded::Reply(reply)) => self.on_reply(reply, now),
+                Ok(Decoded::Echo { .. }) => self.counters.echoes += 1,
+                Ok(Decoded::Ack) => self.counters.unexpected_replies += 1,
+                Err(DecodeError::BadChecksum { .. }) => self.counters.bad_sums += 1,
+                Err(DecodeError::Garbage { skipped, .. }) => {
+                    self.counters.garbage_bytes += skipped as u64
+                }
+                Err(_) => self.counters.garbage_bytes += 1,
+            }
+        }
+    }
+
+    fn on_reply(&mut self, reply: ReturnPacket, now: Instant) {
+        let Some(p) = self.pending else {
+            self.counters.unexpected_replies += 1;
+            return;
+        };
+        let ExpectedReply::Registers { address, length } = p.expected else {
+            self.counters.unexpected_replies += 1;
+            return;
+        };
+        let Some(servo) = self.servos.get(p.index) else {
+            self.pending = None;
+            return;
+        };
+        if reply.id != servo.id().get()
+            || reply.address != address
+            || reply.data.len() != usize::from(length)
+        {
+            self.counters.unexpected_replies += 1;
+            return;
+        }
+        self.pending = None;
+        self.changed = true;
+        self.counters.wire_busy_ns += self.cfg.baud.wire_time_ns(reply.wire_len());
+        let mut events = Vec::new();
+        let cfg = &self.cfg;
+        let s = &mut self.servos[p.index];
+        s.consecutive_timeouts = 0;
+        s.apply_flags(reply.flags, &mut events);
+        match p.tx {
+            Transaction::Identify | Transaction::Probe => {
+                if s.phase != Phase::Ready {
+                    s.on_identity(&reply.data, p.tx == Transaction::Probe, &mut events);
+                }
+            }
+            Transaction::ReadRam => {
+                if s.phase == Phase::ReadRam {
+                    s.on_ram(&reply.data, now);
+                }
+            }
+            Transaction::Verify => {
+                if s.phase == Phase::Ready {
+                    s.on_verify(&reply.data, now, &mut events);
+                }
+            }
+            Transaction::Force(mode) => {
+                if s.phase == Phase::Ready {
+                    s.on_force(mode, &reply.data, now, cfg, &mut events);
+                }
+            }
+            Transaction::Telemetry => {
+                self.counters.telemetry_replies += 1;
+                if let Ok(t) = reply.telemetry()
+                    && matches!(s.phase, Phase::Ready | Phase::FirstTelemetry)
+                {
+                    s.on_telemetry(t, now, cfg, &mut events);
+                }
+            }
+        }
+        self.push_events(events);
+    }
+
+    fn push_events(&mut self, events: Vec<BusEvent>) {
+        for e in events {
+            self.changed = true;
+            if self.events.len() >= MAX_QUEUED_EVENTS {
+                self.events.pop_front();
+            }
+            self.events.push_back(e);
+        }
+    }
+
+    /// Time has passed: a reply that is overdue has timed out.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        self.touch(now);
+        let Some(p) = self.pending else {
+            return;
+        };
+        if now < p.deadline {
+            return;
+        }
+        // A complete reply may sit behind a candidate that never completed.
+        self.decoder.abandon_partial();
+        self.drain_decoder(now);
+        if self.pending.is_none() {
+            return;
+        }
+        self.pending = None;
+        self.changed = true;
+        self.counters.timeouts += 1;
+        let mut events = Vec::new();
+        if let Some(s) = self.servos.get_mut(p.index) {
+            s.on_timeout(now, &self.cfg, &mut events);
+        }
+        self.push_events(events);
+    }
+
+    /// The serial port failed: the reply awaited will never come (not counted as a timeout),
+    /// and bytes half received are forgotten.
+    pub fn handle_port_lost(&mut self, reason: impl Into<String>, now: Instant) {
+        self.touch(now);
+        self.pending = None;
+        self.decoder.clear();
+        if self.port_open {
+            self.port_open = false;
+            self.push_events(vec![BusEvent::PortLost {
+                reason: reason.into(),
+            }]);
+        }
+    }
+
+    /// The serial port is open again: every commanded servo gets its goal again and every
+    /// servo's force state is read back at its next turn.
+    pub fn handle_port_back(&mut self, now: Instant) {
+        self.touch(now);
+        self.pending = None;
+        self.decoder.clear();
+        self.wire_free_at = now;
+        self.resend_all = true;
+        for s in &mut self.servos {
+            s.last_verify_at = None;
+        }
+        if !self.port_open {
+            self.port_open = true;
+            self.push_events(vec![BusEvent::PortBack]);
+        }
+    }
+
+    /// Whether a long packet is due.
+    fn command_needed(&self) -> bool {
+        self.servos
+            .iter()
+            .any(|s| s.commandable() && (self.resend_all || s.unsent_position().is_some()))
+    }
+
+    /// The next packet to write, or `None` when nothing may or need be sent now (a reply is
+    /// pending, or nothing is due until [`BusMaster::poll_timeout`]). Call it again after
+    /// writing: several packets may be due at once.
+    pub fn poll_transmit(&mut self, now: Instant) -> Option<Transmit> {
+        self.touch(now);
+        if self.pending.is_some() {
+            return None;
+        }
+        if self.shutdown.is_some() {
+            return self.shutdown_transmit(now);
+        }
+        if self.command_needed() {
+            // Never more than one frame queued ahead of the wire: goals that arrive while the
+            // wire is busy are coalesced here, not queued in the port.
+            if self.wire_free_at > now + self.command_lead() {
+                return None;
+            }
+            return self.long_packet(now);
+        }
+        let due = |at: Option<Instant>| at.is_none_or(|t| t <= now);
+        if let Some((i, mode)) = self.servos.iter().enumerate().find_map(|(i, s)| {
+            s.force_due()
+                .filter(|(at, _)| due(*at))
+                .map(|(_, m)| (i, m))
+        }) {
+            return Some(self.start(i, Transaction::Force(mode), now));
+        }
+        let n = self.servos.len();
+        for k in 1..=n {
+            let i = (self.cursor + k) % n;
+            if let Some((at, tx)) = self.servos[i].poll_due(&self.cfg)
+                && due(at)
+            {
+                self.cursor = i;
+                return Some(self.start(i, tx, now));
+            }
+        }
+        None
+    }
+
+    /// How far ahead of the wire a long packet may be queued: one frame of the largest size.
+    fn command_lead(&self) -> Duration {
+        self.cfg.wire_time(8 + 5 * self.servos.len())
+    }
+
+    /// Write a request to servo `i` and wait for its reply.
+    fn start(&mut self, i: usize, tx: Transaction, now: Instant) -> Transmit {
+        let s = &mut self.servos[i];
+        let id = s.id();
+        let packet = s.request(tx);
+        match tx {
+            Transaction::Telemetry => s.last_poll_at = Some(now),
+            Transaction::Verify => s.last_verify_at = Some(now),
+            _ => {}
+        }
+        let return_delay = s.return_delay.unwrap_or(self.cfg.assumed_return_delay);
+        let kind = match tx {
+            Transaction::Identify | Transaction::ReadRam => TxKind::Init(id),
+            Transaction::Probe => TxKind::Probe(id),
+            Transaction::Telemetry => TxKind::Poll(id),
+            Transaction::Verify => TxKind::Verify(id),
+            Transaction::Force(_) => TxKind::Force(id),
+        };
+        match tx {
+            Transaction::Telemetry => self.counters.polls += 1,
+            _ => self.counters.other_requests += 1,
+        }
+        let expected = packet.expected_reply();
+        let transmit = self.emit(packet.to_bytes(), kind, now);
+        if expected.wire_len() > 0 {
+            let reply_wire = self.cfg.wire_time(expected.wire_len());
+            self.pending = Some(Pending {
+                index: i,
+                tx,
+                expected,
+                deadline: self.wire_free_at + reply_wire + return_delay + self.cfg.turnaround,
+            });
+        }
+        Transmit {
+            expects_reply: expected.wire_len() > 0,
+            ..transmit
+        }
+    }
+
+    /// Account for `bytes` going on the wire after whatever is still queued.
+    fn emit(&mut self, bytes: Vec<u8>, kind: TxKind, now: Instant) -> Transmit {
+        self.changed = true;
+        let wire_time = self.cfg.wire_time(bytes.len());
+        let start = self.wire_free_at.max(now);
+        self.wire_free_at = start + wire_time;
+        self.counters.bytes_sent += bytes.len() as u64;
+        self.counters.wire_busy_ns += self.cfg.baud.wire_time_ns(bytes.len());
+        Transmit {
+            bytes,
+            kind,
+            expects_reply: false,
+            wire_time,
+        }
+    }
+
+    /// One long packet with an entry for every commanded servo. A new goal carries the
+    /// servo's goal time (or a soft-start time); a goal sent again carries the time left of
+    /// the move it started, so that re-sending never slows a move down. Goal times are left
+    /// out of the frame when every entry's is zero and every servo's register already is.
+    fn long_packet(&mut self, now: Instant) -> Option<Transmit> {
+        let start = self.wire_free_at.max(now);
+        struct Entry {
+            index: usize,
+            position: crate::protocol::MmCenti,
+            new: bool,
+            soft: bool,
+            time: Duration,
+        }
+        let mut entries = Vec::new();
+        let mut with_time = false;
+        for (index, s) in self.servos.iter().enumerate() {
+            if !s.commandable() {
+                continue;
+            }
+            let Some(position) = s.desired_position() else {
+                continue;
+            };
+            let new = s.unsent_position().is_some();
+            let soft_active = s.soft_pending || s.soft_until.is_some_and(|u| start < u);
+            let (time, soft) = if new {
+                match soft_active
+                    .then(|| s.soft_start_time(position, &self.cfg))
+                    .flatten()
+                {
+                    Some(t) => (t, true),
+                    None => (
+                        s.setup
+                            .goal_time
+                            .map_or(Duration::ZERO, |t| Duration::from_millis(t.millis().into())),
+                        false,
+                    ),
+                }
+            } else {
+                (s.sent.map_or(Duration::ZERO, |g| g.remaining(start)), false)
+            };
+            with_time |= ms10_ceil(time) != Ms10(0) || s.goal_time_reg != Some(Ms10(0));
+            entries.push(Entry {
+                index,
+                position,
+                new,
+                soft,
+                time,
+            });
+        }
+        self.resend_all = false;
+        if entries.is_empty() {
+            return None;
+        }
+        let goals: Vec<GoalEntry> = entries
+            .iter()
+            .map(|e| GoalEntry {
+                id: self.servos[e.index].id(),
+                position: e.position,
+                time: with_time.then(|| ms10_ceil(e.time)),
+            })
+            .collect();
+        let packet = match LongPacket::goals(&goals) {
+            Ok(p) => p,
+            Err(_) => {
+                // Cannot happen (positions are clamped, IDs unique); never retry it forever.
+                for e in &entries {
+                    let s = &mut self.servos[e.index];
+                    s.sent = Some(SentGoal {
+                        position: e.position,
+                        at: start,
+                        move_time: e.time,
+                    });
+                }
+                return None;
+            }
+        };
+        for e in &entries {
+            let s = &mut self.servos[e.index];
+            if e.new {
+                self.counters.goals_sent += 1;
+                s.sent = Some(SentGoal {
+                    position: e.position,
+                    at: start,
+                    move_time: e.time,
+                });
+                // The first soft move fixes how long the soft start lasts; goals that change
+                // meanwhile are approached at the soft speed but never extend it.
+                if e.soft && s.soft_pending {
+                    s.soft_pending = false;
+                    s.soft_until = Some(start + e.time);
+                }
+            }
+            if with_time {
+                s.goal_time_reg = Some(ms10_ceil(e.time));
+            }
+        }
+        self.counters.command_frames += 1;
+        Some(self.emit(packet.to_bytes(), TxKind::Command, now))
+    }
+
+    fn shutdown_transmit(&mut self, now: Instant) -> Option<Transmit> {
+        let mut sd = self.shutdown?;
+        if sd.done {
+            return None;
+        }
+        let out = match sd.leave {
+            ShutdownForce::AsIs => {
+                sd.done = true;
+                if self.command_needed() {
+                    self.long_packet(now)
+                } else {
+                    None
+                }
+            }
+            ShutdownForce::Off => {
+                let next = self.servos[sd.next.min(self.servos.len())..]
+                    .iter()
+                    .position(|s| !matches!(s.phase, Phase::WrongModel { .. }))
+                    .map(|k| sd.next + k);
+                match next {
+                    Some(i) => {
+                        sd.next = i + 1;
+                        let s = &mut self.servos[i];
+                        let id = s.id();
+                        s.force = ForceState::Off;
+                        s.sent = None;
+                        let bytes = ShortPacket::force(id.into(), ForceMode::Off).to_bytes();
+                        Some(self.emit(bytes, TxKind::Final(Some(id)), now))
+                    }
+                    None => {
+                        sd.done = true;
+                        None
+                    }
+                }
+            }
+        };
+        self.shutdown = Some(sd);
+        out
+    }
+
+    /// When the bus master next needs to be woken ([`BusMaster::handle_timeout`], then
+    /// [`BusMaster::poll_transmit`]): the pending reply's deadline, or the earliest time a
+    /// request falls due. `None`: nothing is timed; wait for goals or bytes.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        if let Some(p) = self.pending {
+            return Some(p.deadline);
+        }
+        if self.shutdown.is_some() {
+            return None;
+        }
+        if self.command_needed() {
+            return Some(
+                self.wire_free_at
+                    .checked_sub(self.command_lead())
+                    .map_or(self.now, |t| t.max(self.now)),
+            );
+        }
+        self.servos
+            .iter()
+            .flat_map(|s| {
+                let force = s.force_due().map(|(at, _)| at.unwrap_or(self.now));
+                let poll = s.poll_due(&self.cfg).map(|(at, _)| at.unwrap_or(self.now));
+                [force, poll]
+            })
+            .flatten()
+            .min()
+    }
+
+    /// The next event, oldest first.
+    pub fn poll_event(&mut self) -> Option<BusEvent> {
+        self.events.pop_front()
+    }
+
+    /// Every servo's state at the latest time handed in.
+    pub fn status(&self) -> BusStatus {
+        self.status_at(self.now)
+    }
+
+    /// Every servo's state, ages measured to `now`.
+    pub fn status_at(&self, now: Instant) -> BusStatus {
+        BusStatus {
+            name: self.cfg.name.clone(),
+            port_open: self.port_open,
+            servos: self
+                .servos
+                .iter()
+                .map(|s| s.status(now, &self.cfg))
+                .collect(),
+            counters: self.counters,
+            at: now,
+        }
+    }
+
+    /// Whether anything a status snapshot shows (besides ages) changed since the last call.
+    pub fn take_changed(&mut self) -> bool {
+        std::mem::take(&mut self.changed)
+    }
+
+    pub fn counters(&self) -> &BusCounters {
+        &self.counters
+    }
+
+    /// Whether a reply is awaited (nothing is transmitted until it arrives or times out).
+    pub fn reply_pending(&self) -> bool {
+        self.pending.is_some()
+    }
+
+    /// Stop polling and commanding; queue the final packets: the newest goals still waiting
+    /// ([`ShutdownForce::AsIs`]) or force OFF for every servo ([`ShutdownForce::Off`]). They are
+    /// handed out by [`BusMaster::poll_transmit`] once no reply is pending. A second call
+    /// changes nothing.
+    pub fn shutdown(&mut self, leave: ShutdownForce) {
+        if self.shutdown.is_none() {
+            self.shutdown = Some(Shutdown {
+                leave,
+                next: 0,
+                done: false,
+            });
+        }
+    }
+
+    /// Whether every final packet has been handed out (after [`BusMaster::shutdown`]).
+    pub fn is_shut_down(&self) -> bool {
+        self.pending.is_none() && self.shutdown.is_some_and(|s| s.done)
+    }
+
+    /// When the bytes handed out so far will have left the wire.
+    pub fn wire_idle_at(&self) -> Instant {
+        self.wire_free_at
+    }
+}

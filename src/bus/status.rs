@@ -1,0 +1,150 @@
+//! A snapshot of one bus: each servo's health, telemetry and the age of that telemetry, and the
+//! bus master's counters. Plain data, cloned out of the bus master for the MAVLink side.
+
+use crate::protocol::{Celsius, MmCenti, PositionLimits, ReplyFlags, ServoId, Telemetry};
+use std::time::{Duration, Instant};
+
+/// How a servo is doing, worst first in [`Health::severity`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Health {
+    /// Being read at start-up (or after it came back); not commanded yet.
+    Starting,
+    /// Answering, with telemetry younger than `stale_after`.
+    Online,
+    /// Answering now and then, but its latest telemetry is older than `stale_after`.
+    Stale,
+    /// Missed `offline_after_timeouts` replies in a row; probed with back-off.
+    Offline,
+    /// Not an LJ9DA41; never commanded.
+    WrongModel,
+    /// Reports a temperature error: force is OFF until it is power-cycled.
+    TemperatureError,
+}
+
+impl Health {
+    /// 0 for fine, larger for worse, for "the worst servo on the bus".
+    pub fn severity(self) -> u8 {
+        match self {
+            Health::Online => 0,
+            Health::Starting => 1,
+            Health::Stale => 2,
+            Health::Offline => 3,
+            Health::TemperatureError => 4,
+            Health::WrongModel => 5,
+        }
+    }
+}
+
+/// Force Enable (register 36) as far as the bus master knows it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ForceState {
+    /// Not read yet (or the servo restarted).
+    Unknown,
+    Off,
+    On,
+    Brake,
+}
+
+/// One servo's state.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServoStatus {
+    pub id: ServoId,
+    pub name: String,
+    pub health: Health,
+    /// The latest registers 42–59 (position, load, temperature, voltage).
+    pub telemetry: Option<Telemetry>,
+    /// When that telemetry arrived.
+    pub telemetry_at: Option<Instant>,
+    /// Its age at the time of the snapshot.
+    pub age: Option<Duration>,
+    /// The status bits of the servo's latest reply (bit 1, undefined, removed).
+    pub flags: ReplyFlags,
+    /// The latest goal position put on the wire (clamped to the servo's limits).
+    pub goal: Option<MmCenti>,
+    pub force: ForceState,
+    pub stalled: bool,
+    /// Registers 0–1, once read.
+    pub model: Option<u16>,
+    /// Register 2, once read.
+    pub firmware: Option<u8>,
+    /// Registers 8–11, once read (and valid).
+    pub limits: Option<PositionLimits>,
+    /// Register 5, once read.
+    pub reversed: Option<bool>,
+    /// Register 7, once read.
+    pub return_delay: Option<Duration>,
+    /// Registers 14–15, once read.
+    pub temperature_limit: Option<Celsius>,
+    /// Replies missed in a row.
+    pub consecutive_timeouts: u32,
+    /// Telemetry polls answered.
+    pub telemetry_count: u64,
+    /// Replies missed in all.
+    pub timeouts: u64,
+}
+
+/// What the bus master counted since it started.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct BusCounters {
+    /// Long packets written.
+    pub command_frames: u64,
+    /// Telemetry polls written.
+    pub polls: u64,
+    /// Telemetry replies received.
+    pub telemetry_replies: u64,
+    /// Start-up reads, probes, force writes and read-backs written.
+    pub other_requests: u64,
+    /// Replies that did not arrive in time.
+    pub timeouts: u64,
+    /// Return packets rejected for a bad checksum.
+    pub bad_sums: u64,
+    /// Bytes skipped that started no packet (and other malformed candidates).
+    pub garbage_bytes: u64,
+    /// Echoes of our own packets (adapters that hear themselves), skipped.
+    pub echoes: u64,
+    /// Valid replies nobody was waiting for (wrong ID, wrong registers, too late).
+    pub unexpected_replies: u64,
+    /// Goals handed to `set_goal` for servos of this bus.
+    pub goals_received: u64,
+    /// Position goals that reached the wire in a long packet.
+    pub goals_sent: u64,
+    /// Position goals replaced by a newer goal before they reached the wire.
+    pub goals_superseded: u64,
+    /// Position goals equal to the one already on the wire (nothing to send).
+    pub goals_unchanged: u64,
+    /// `set_goal` calls for an ID that is not on this bus (ignored).
+    pub goals_unknown_id: u64,
+    /// Bytes written.
+    pub bytes_sent: u64,
+    /// Bytes received (including echoes and garbage).
+    pub bytes_received: u64,
+    /// Wire time of the bytes written plus that of the valid replies received, in ns: the
+    /// numerator of bus utilisation.
+    pub wire_busy_ns: u64,
+}
+
+/// A snapshot of one bus.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BusStatus {
+    pub name: String,
+    /// Whether the driver has the serial port open (always true for a bare bus master).
+    pub port_open: bool,
+    pub servos: Vec<ServoStatus>,
+    pub counters: BusCounters,
+    /// The time the snapshot describes (ages are measured to it).
+    pub at: Instant,
+}
+
+impl BusStatus {
+    pub fn servo(&self, id: ServoId) -> Option<&ServoStatus> {
+        self.servos.iter().find(|s| s.id == id)
+    }
+
+    /// The worst health on the bus (`None` for a bus without servos).
+    pub fn worst_health(&self) -> Option<Health> {
+        self.servos
+            .iter()
+            .map(|s| s.health)
+            .max_by_key(|h| h.severity())
+    }
+}

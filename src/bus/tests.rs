@@ -1,0 +1,1282 @@
+//! Unit tests of the sans-IO bus master, one per rule, driven with simulated time: they never
+//! sleep and check timing to the nanosecond.
+//!
+//! `FakeServo` is a minimal LJ9DA41 (memory map, force rules, replies); `Rig` carries packets
+//! between it and the bus master, keeping wire time at the bus speed.
+
+use super::*;
+use crate::protocol::{
+    BaudRate, Ma10, MmCenti, Ms10, Percent, ReplyFlags, ReturnPacket, ServoId, registers::addr,
+};
+use std::time::{Duration, Instant};
+
+fn id(n: u8) -> ServoId {
+    ServoId::new(n).unwrap()
+}
+
+fn us(n: u64) -> Duration {
+    Duration::from_micros(n)
+}
+
+fn ms(n: u64) -> Duration {
+    Duration::from_millis(n)
+}
+
+/// Wire time of `n` bytes at 115 200 bit/s.
+fn wire(n: usize) -> Duration {
+    Duration::from_nanos(BaudRate::B115200.wire_time_ns(n))
+}
+
+/// A minimal servo: stores writes, answers requests, applies the force rules.
+#[derive(Debug, Clone)]
+struct FakeServo {
+    id: u8,
+    model: u16,
+    return_delay_ms: u8,
+    reverse: u8,
+    plus: i16,
+    minus: i16,
+    goal: i16,
+    goal_time: u16,
+    max_force: u8,
+    force: u8,
+    position: i16,
+    load: u16,
+    temperature: i16,
+    voltage: u16,
+    flags: u8,
+    /// Answers at all.
+    present: bool,
+    /// Refuses force ON (as with the rod outside the limits).
+    refuse_force: bool,
+    /// The rod does not follow the goal.
+    stuck: bool,
+    /// Every goal write seen: (position, goal time if written).
+    goal_writes: Vec<(i16, Option<u16>)>,
+}
+
+impl FakeServo {
+    fn new(id: u8) -> Self {
+        FakeServo {
+            id,
+            model: 0x7510,
+            return_delay_ms: 0,
+            reverse: 0,
+            plus: 2500,
+            minus: -2500,
+            goal: 0,
+            goal_time: 0,
+            max_force: 100,
+            force: 0,
+            position: 0,
+            load: 7,
+            temperature: 30,
+            voltage: 1200,
+            flags: 0,
+            present: true,
+            refuse_force: false,
+            stuck: false,
+            goal_writes: Vec::new(),
+        }
+    }
+
+    fn power_cycle(&mut self) {
+        self.force = 0;
+        self.goal = 0;
+        self.goal_time = 0;
+        self.flags = 0;
+        self.max_force = 100;
+    }
+
+    fn regs(&self) -> [u8; 60] {
+        let mut r = [0u8; 60];
+        let mut put16 = |a: usize, v: u16| r[a..a + 2].copy_from_slice(&v.to_le_bytes());
+        put16(0, self.model);
+        put16(8, self.plus as u16);
+        put16(10, self.minus as u16);
+        put16(14, 85);
+        put16(30, self.goal as u16);
+        put16(32, self.goal_time);
+        put16(42, self.position as u16);
+        put16(48, self.load);
+        put16(50, self.temperature as u16);
+        put16(52, self.voltage);
+        r[2] = 3;
+        r[4] = self.id;
+        r[5] = self.reverse;
+        r[6] = 7;
+        r[7] = self.return_delay_ms;
+        r[35] = self.max_force;
+        r[36] = self.force;
+        r[59] = 0xFF;
+        r
+    }
+
+    fn write(&mut self, address: u8, data: &[u8]) {
+        let mut goal_write: Option<(i16, Option<u16>)> = None;
+        for (k, b) in data.iter().enumerate() {
+            let a = address as usize + k;
+            match a {
+                0x1E => {
+                    let p = i16::from_le_bytes([*b, data.get(k + 1).copied().unwrap_or(0)]);
+                    self.goal = p.clamp(self.minus, self.plus);
+                    goal_write = Some((p, None));
+                }
+                0x20 => {
+                    self.goal_time =
+                        u16::from_le_bytes([*b, data.get(k + 1).copied().unwrap_or(0)]);
+                    if let Some((p, _)) = goal_write {
+                        goal_write = Some((p, Some(self.goal_time)));
+                    }
+                }
+                0x23 => self.max_force = *b,
+                0x24 => match *b {
+                    1 if self.refuse_force || self.flags & 0x80 != 0 => {}
+                    1 => {
+                        self.force = 1;
+                        self.goal = self.position;
+                    }
+                    v => self.force = v,
+                },
+                _ => {}
+            }
+        }
+        if let Some(w) = goal_write {
+            self.goal_writes.push(w);
+        }
+        if self.force == 1 && !self.stuck {
+            self.position = self.goal;
+        }
+    }
+
+    /// Handle one host packet; the reply bytes, if it asks for one.
+    fn handle(&mut self, p: &[u8]) -> Option<Vec<u8>> {
+        if p.len() < 8 || p[0] != 0xFA || p[1] != 0xAF {
+            return None;
+        }
+        let (pid, flag, address, len, count) = (p[2], p[3], p[4], p[5] as usize, p[6] as usize);
+        if pid == 0 && flag == 0 {
+            for e in p[7..p.len() - 1].chunks(len) {
+                if e[0] == self.id {
+                    self.write(address, &e[1..]);
+                }
+            }
+            return None;
+        }
+        if pid != self.id {
+            return None;
+        }
+        if count == 1 && len > 0 {
+            self.write(address, &p[7..7 + len]);
+        }
+        let (a, n) = match flag & 0x0F {
+            0x3 => (0usize, 30usize),
+            0x5 => (30, 30),
+            0x9 => (42, 18),
+            0xB => (30, 12),
+            0xF => (address as usize, len),
+            _ => return None,
+        };
+        if !self.present {
+            return None;
+        }
+        let regs = self.regs();
+        Some(
+            ReturnPacket {
+                id: self.id,
+                flags: ReplyFlags(self.flags),
+                address: a as u8,
+                data: regs[a..a + n].to_vec(),
+            }
+            .to_bytes(),
+        )
+    }
+}
+
+/// One packet the bus master wrote, and when.
+#[derive(Debug, Clone)]
+struct Sent {
+    at: Instant,
+    tx: Transmit,
+}
+
+/// The bus master, the fake servos and the simulated wire between them.
+struct Rig {
+    m: BusMaster,
+    servos: Vec<FakeServo>,
+    t: Instant,
+    t0: Instant,
+    wire_free: Instant,
+    reply: Option<(Instant, Vec<u8>)>,
+    log: Vec<Sent>,
+    events: Vec<BusEvent>,
+    /// The adapter echoes every packet written.
+    echo: bool,
+    /// Bytes put on the line before every reply.
+    noise: Vec<u8>,
+    /// Time from the end of a request to the servo's first reply byte, besides the return
+    /// delay.
+    latency: Duration,
+}
+
+impl Rig {
+    fn new(cfg: BusConfig) -> Self {
+        let t0 = Instant::now();
+        let servos = cfg
+            .servos
+            .iter()
+            .map(|s| FakeServo::new(s.id.get()))
+            .collect();
+        Rig {
+            m: BusMaster::new(cfg, t0),
+            servos,
+            t: t0,
+            t0,
+            wire_free: t0,
+            reply: None,
+            log: Vec::new(),
+            events: Vec::new(),
+            echo: false,
+            noise: Vec::new(),
+            latency: us(100),
+        }
+    }
+
+    fn with_ids(ids: &[u8]) -> Self {
+        Self::new(config(ids))
+    }
+
+    fn servo(&mut self, n: u8) -> &mut FakeServo {
+        self.servos.iter_mut().find(|s| s.id == n).unwrap()
+    }
+
+    fn wire(&self, bytes: usize) -> Duration {
+        self.m.config().wire_time(bytes)
+    }
+
+    /// Write everything the bus master has due at the current time.
+    fn transmit(&mut self) {
+        while let Some(tx) = self.m.poll_transmit(self.t) {
+            let start = self.wire_free.max(self.t);
+            self.wire_free = start + self.wire(tx.bytes.len());
+            if self.echo {
+                self.m.handle_input(&tx.bytes, self.wire_free);
+            }
+            let mut answer = None;
+            for s in &mut self.servos {
+                if let Some(r) = s.handle(&tx.bytes) {
+                    answer = Some((r, s.return_delay_ms));
+                }
+            }
+            if let Some((bytes, delay)) = answer {
+                let at =
+                    self.wire_free + ms(u64::from(delay)) + self.latency + self.wire(bytes.len());
+                self.reply = Some((at, bytes));
+            }
+            self.log.push(Sent { at: self.t, tx });
+            assert!(
+                self.log.len() < 1_000_000,
+                "runaway: {:?}",
+                &self.log[self.log.len() - 5..]
+            );
+        }
+    }
+
+    /// Run the bus until `d` after the current time.
+    fn run(&mut self, d: Duration) {
+        let end = self.t + d;
+        loop {
+            self.transmit();
+            let next = match (&self.reply, self.m.poll_timeout()) {
+                (Some((r, _)), Some(t)) => Some((*r).min(t.max(self.t))),
+                (Some((r, _)), None) => Some(*r),
+                (None, t) => t.map(|t| t.max(self.t)),
+            };
+            match next {
+                Some(n) if n <= end => self.t = n,
+                _ => {
+                    self.t = end;
+                    self.m.handle_timeout(self.t);
+                    break;
+                }
+            }
+            if self.reply.as_ref().is_some_and(|(r, _)| *r <= self.t) {
+                let (_, bytes) = self.reply.take().unwrap();
+                if !self.noise.is_empty() {
+                    let noise = self.noise.clone();
+                    self.m.handle_input(&noise, self.t);
+                }
+                // Deliver in two pieces, as a port would.
+                let (a, b) = bytes.split_at(bytes.len() / 2);
+                self.m.handle_input(a, self.t);
+                self.m.handle_input(b, self.t);
+            } else {
+                self.m.handle_timeout(self.t);
+            }
+            self.drain_events();
+        }
+        self.drain_events();
+    }
+
+    /// Complete the exchange in flight (its reply, or its timeout) and stop there, before the
+    /// bus master writes anything else.
+    fn settle(&mut self) {
+        if let Some((at, bytes)) = self.reply.take() {
+            self.t = self.t.max(at);
+            self.m.handle_input(&bytes, self.t);
+        } else if let Some(deadline) = self.m.poll_timeout().filter(|_| self.m.reply_pending()) {
+            self.t = self.t.max(deadline);
+            self.m.handle_timeout(self.t);
+        }
+        self.drain_events();
+        assert!(!self.m.reply_pending());
+    }
+
+    fn drain_events(&mut self) {
+        while let Some(e) = self.m.poll_event() {
+            self.events.push(e);
+        }
+    }
+
+    fn set_goal(&mut self, n: u8, goal: Goal) {
+        self.m.set_goal(id(n), goal, self.t);
+    }
+
+    fn health(&self, n: u8) -> Health {
+        self.m.status().servo(id(n)).unwrap().health
+    }
+
+    fn sent_since(&self, from: usize) -> &[Sent] {
+        &self.log[from..]
+    }
+
+    fn commands_since(&self, from: usize) -> Vec<Vec<(u8, i16, Option<u16>)>> {
+        self.sent_since(from)
+            .iter()
+            .filter(|s| s.tx.kind == TxKind::Command)
+            .map(|s| parse_long(&s.tx.bytes))
+            .collect()
+    }
+
+    fn kinds_since(&self, from: usize) -> Vec<TxKind> {
+        self.sent_since(from).iter().map(|s| s.tx.kind).collect()
+    }
+
+    /// Start every servo and switch force ON with a first goal at its present position.
+    fn online_with_force(ids: &[u8]) -> Self {
+        let mut rig = Self::with_ids(ids);
+        rig.run(ms(100));
+        for &n in ids {
+            assert_eq!(rig.health(n), Health::Online, "servo {n} online");
+            rig.set_goal(n, Goal::Position(MmCenti(0)));
+        }
+        rig.run(ms(100));
+        for &n in ids {
+            assert_eq!(rig.servo(n).force, 1, "servo {n} force on");
+        }
+        rig
+    }
+}
+
+fn config(ids: &[u8]) -> BusConfig {
+    BusConfig::new(
+        "test",
+        BaudRate::B115200,
+        ids.iter()
+            .map(|&n| ServoSetup::new(id(n), format!("s{n}")))
+            .collect(),
+    )
+}
+
+/// (VID, position, goal time) of every entry of a long packet.
+fn parse_long(b: &[u8]) -> Vec<(u8, i16, Option<u16>)> {
+    assert_eq!(&b[..4], &[0xFA, 0xAF, 0, 0], "a long packet");
+    assert_eq!(b[4], addr::GOAL_POSITION);
+    let (len, count) = (b[5] as usize, b[6] as usize);
+    assert_eq!(b.len(), 8 + len * count);
+    b[7..b.len() - 1]
+        .chunks(len)
+        .map(|e| {
+            let pos = i16::from_le_bytes([e[1], e[2]]);
+            let time = (len == 5).then(|| u16::from_le_bytes([e[3], e[4]]));
+            (e[0], pos, time)
+        })
+        .collect()
+}
+
+#[test]
+fn startup_reads_identity_ram_and_telemetry_and_leaves_force_off() {
+    let mut rig = Rig::with_ids(&[1, 2]);
+    rig.servo(2).reverse = 1;
+    rig.servo(2).plus = 2000;
+    rig.servo(2).minus = -1500;
+    rig.servo(2).return_delay_ms = 1;
+    rig.run(ms(100));
+    let kinds = rig.kinds_since(0);
+    let of = |n: u8| -> Vec<Vec<u8>> {
+        rig.log
+            .iter()
+            .filter(|s| s.tx.bytes[2] == n)
+            .map(|s| s.tx.bytes.clone())
+            .take(3)
+            .collect()
+    };
+    // Registers 0–29, then 30–41, then 42–59.
+    assert_eq!(of(1)[0], vec![0xFA, 0xAF, 1, 0x03, 0, 0, 1, 0x03]);
+    assert_eq!(of(1)[1], vec![0xFA, 0xAF, 1, 0x0B, 0, 0, 1, 0x0B]);
+    assert_eq!(of(1)[2], vec![0xFA, 0xAF, 1, 0x09, 0, 0, 1, 0x09]);
+    assert!(
+        kinds
+            .iter()
+            .all(|k| !matches!(k, TxKind::Force(_) | TxKind::Command))
+    );
+    let st = rig.m.status();
+    let s2 = st.servo(id(2)).unwrap();
+    assert_eq!(s2.health, Health::Online);
+    assert_eq!(s2.model, Some(0x7510));
+    assert_eq!(s2.firmware, Some(3));
+    assert_eq!(s2.reversed, Some(true));
+    assert_eq!(s2.return_delay, Some(ms(1)));
+    assert_eq!(
+        s2.limits.map(|l| (l.minus(), l.plus())),
+        Some((MmCenti(-1500), MmCenti(2000)))
+    );
+    assert_eq!(s2.force, ForceState::Off);
+    assert!(rig.events.contains(&BusEvent::ServoOnline { id: id(1) }));
+    assert!(rig.events.contains(&BusEvent::ServoOnline { id: id(2) }));
+    assert_eq!(rig.servo(1).force, 0, "no force before the first goal");
+}
+
+#[test]
+fn max_force_is_written_at_startup_when_configured() {
+    let mut cfg = config(&[1]);
+    cfg.servos[0].max_force = Some(Percent::new(80).unwrap());
+    let mut rig = Rig::new(cfg);
+    rig.run(ms(50));
+    assert_eq!(rig.servo(1).max_force, 80);
+    let mut cfg = config(&[1]);
+    cfg.servos[0].max_force = None;
+    let mut rig = Rig::new(cfg);
+    rig.servo(1).max_force = 55;
+    rig.run(ms(50));
+    assert_eq!(rig.servo(1).max_force, 55, "left alone when not configured");
+}
+
+#[test]
+fn first_goal_switches_force_on_before_the_long_packet() {
+    let mut rig = Rig::with_ids(&[1]);
+    rig.run(ms(100));
+    rig.servo(1).position = 321;
+    rig.run(ms(20));
+    let from = rig.log.len();
+    rig.set_goal(1, Goal::Position(MmCenti(400)));
+    rig.run(ms(50));
+    let kinds = rig.kinds_since(from);
+    let force = kinds
+        .iter()
+        .position(|k| *k == TxKind::Force(id(1)))
+        .unwrap();
+    let command = kinds.iter().position(|k| *k == TxKind::Command).unwrap();
+    assert!(force < command, "force ON first: {kinds:?}");
+    // Force ON took the present position as goal; the first goal written is ours.
+    assert_eq!(rig.servo(1).goal_writes.first().map(|w| w.0), Some(400));
+    assert_eq!(rig.servo(1).position, 400);
+    let st = rig.m.status();
+    assert_eq!(st.servo(id(1)).unwrap().force, ForceState::On);
+    assert_eq!(st.servo(id(1)).unwrap().goal, Some(MmCenti(400)));
+}
+
+#[test]
+fn a_goal_change_sends_one_long_packet_with_every_servo() {
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    rig.set_goal(1, Goal::Position(MmCenti(100)));
+    rig.set_goal(2, Goal::Position(MmCenti(-200)));
+    rig.set_goal(3, Goal::Position(MmCenti(300)));
+    rig.set_goal(4, Goal::Position(MmCenti(-400)));
+    rig.run(ms(300));
+    // Only servo 3 changes: the next bus slot is one long packet carrying all four.
+    let from = rig.log.len();
+    rig.set_goal(3, Goal::Position(MmCenti(333)));
+    assert!(rig.m.reply_pending(), "a poll is in flight");
+    rig.run(ms(10));
+    let sent = rig.sent_since(from);
+    let first = sent
+        .iter()
+        .position(|s| s.tx.kind == TxKind::Command)
+        .unwrap();
+    assert!(
+        sent[..first].iter().all(|s| !s.tx.expects_reply),
+        "the command takes the first free slot"
+    );
+    let commands = rig.commands_since(from);
+    assert_eq!(commands.len(), 1, "one frame");
+    let entries: Vec<(u8, i16)> = commands[0].iter().map(|e| (e.0, e.1)).collect();
+    assert_eq!(entries, vec![(1, 100), (2, -200), (3, 333), (4, -400)]);
+    assert_eq!(rig.servo(3).position, 333);
+}
+
+#[test]
+fn nothing_is_transmitted_while_a_reply_is_pending() {
+    let mut rig = Rig::with_ids(&[1, 2]);
+    let t0 = rig.t0;
+    let tx = rig.m.poll_transmit(t0).unwrap();
+    assert!(tx.expects_reply);
+    let deadline = rig.m.poll_timeout().unwrap();
+    // New goals, time passing, unrelated bytes: still nothing until the reply or the deadline.
+    rig.m
+        .set_goal(id(2), Goal::Position(MmCenti(5)), t0 + us(10));
+    for k in 0..50u32 {
+        let t = t0 + (deadline - t0) * k / 50;
+        rig.m.handle_input(&[0x00, 0x13], t);
+        rig.m.handle_timeout(t);
+        assert!(rig.m.poll_transmit(t).is_none(), "at {:?}", t - t0);
+    }
+    rig.m.handle_timeout(deadline - Duration::from_nanos(1));
+    assert!(
+        rig.m
+            .poll_transmit(deadline - Duration::from_nanos(1))
+            .is_none()
+    );
+    rig.m.handle_timeout(deadline);
+    assert!(
+        rig.m.poll_transmit(deadline).is_some(),
+        "free after the timeout"
+    );
+
+    // Over a long run with every servo answering: each request's reply (or timeout) comes
+    // before the next packet is written.
+    let mut rig = Rig::online_with_force(&[1, 2, 3]);
+    for k in 0..200 {
+        rig.set_goal(1 + (k % 3) as u8, Goal::Position(MmCenti(k as i16)));
+        rig.run(us(1700));
+    }
+    let c = rig.m.counters();
+    let replies = c.telemetry_replies + c.other_requests + u64::from(rig.m.reply_pending());
+    let requests = c.polls + c.other_requests;
+    assert_eq!(replies, requests, "every request answered");
+    assert_eq!(rig.m.counters().timeouts, 0);
+    assert_eq!(rig.m.counters().unexpected_replies, 0);
+}
+
+#[test]
+fn reply_timeout_is_wire_time_plus_return_delay_plus_turnaround() {
+    let mut rig = Rig::with_ids(&[1]);
+    let t0 = rig.t0;
+    // Identity read before register 7 is known: 8-byte request, 38-byte reply, assumed delay.
+    let expected = t0 + wire(8) + wire(38) + ms(5) + ms(2);
+    let tx = rig.m.poll_transmit(t0).unwrap();
+    assert_eq!(tx.wire_time, wire(8));
+    assert_eq!(rig.m.poll_timeout(), Some(expected));
+
+    // Once register 7 says 3 ms, a telemetry poll: 8 + 26 bytes + 3 ms + 2 ms.
+    let mut rig = Rig::with_ids(&[1]);
+    rig.servo(1).return_delay_ms = 3;
+    rig.run(ms(100));
+    assert_eq!(rig.health(1), Health::Online);
+    rig.settle();
+    rig.servo(1).present = false;
+    let t = rig.t + us(7);
+    rig.m.handle_timeout(t);
+    let tx = rig.m.poll_transmit(t).unwrap();
+    assert_eq!(tx.kind, TxKind::Poll(id(1)));
+    assert_eq!(
+        rig.m.poll_timeout(),
+        Some(t + wire(8) + wire(26) + ms(3) + ms(2))
+    );
+
+    // A request queued behind a long packet counts from the end of that packet.
+    let mut rig = Rig::online_with_force(&[1, 2]);
+    rig.settle();
+    let t = rig.t;
+    rig.set_goal(1, Goal::Position(MmCenti(10)));
+    let long = rig.m.poll_transmit(t).unwrap();
+    assert_eq!(long.kind, TxKind::Command);
+    let poll = rig.m.poll_transmit(t).unwrap();
+    assert!(poll.expects_reply);
+    let reply_len = if matches!(poll.kind, TxKind::Poll(_)) {
+        26
+    } else {
+        20
+    };
+    assert_eq!(
+        rig.m.poll_timeout(),
+        Some(t + long.wire_time + wire(8) + wire(reply_len) + ms(2))
+    );
+}
+
+#[test]
+fn a_servo_goes_offline_after_n_timeouts_and_is_probed_with_backoff() {
+    let mut rig = Rig::online_with_force(&[1, 2]);
+    rig.servo(2).present = false;
+    rig.run(ms(30));
+    let lost_at = rig
+        .events
+        .iter()
+        .position(|e| *e == BusEvent::ServoLost { id: id(2) });
+    assert!(lost_at.is_some(), "{:?}", rig.events);
+    assert_eq!(rig.health(2), Health::Offline);
+    assert_eq!(rig.m.status().servo(id(2)).unwrap().consecutive_timeouts, 3);
+    assert_eq!(
+        rig.health(1),
+        Health::Online,
+        "the other servo is unaffected"
+    );
+    let from = rig.log.len();
+    rig.run(ms(8000));
+    let probes: Vec<Instant> = rig
+        .sent_since(from)
+        .iter()
+        .filter(|s| s.tx.kind == TxKind::Probe(id(2)))
+        .map(|s| s.at)
+        .collect();
+    let gaps: Vec<u128> = probes
+        .windows(2)
+        .map(|w| (w[1] - w[0]).as_millis())
+        .collect();
+    // 100 ms after going offline, then 200, 400, 800, 1600, 2000, 2000 … (each gap also
+    // holds the probe's own timeout and at most one other poll).
+    let expect = [200u128, 400, 800, 1600, 2000, 2000];
+    assert!(gaps.len() >= expect.len(), "{gaps:?}");
+    for (gap, want) in gaps.iter().zip(expect) {
+        assert!(
+            *gap >= want && *gap <= want + 20,
+            "gaps {gaps:?}, expected {expect:?}"
+        );
+    }
+    // Polls of the offline servo are probes only.
+    assert!(
+        !rig.kinds_since(from).contains(&TxKind::Poll(id(2))),
+        "offline servo not polled"
+    );
+}
+
+#[test]
+fn a_servo_that_comes_back_is_reinitialised() {
+    let mut rig = Rig::online_with_force(&[1, 2]);
+    rig.set_goal(2, Goal::Position(MmCenti(500)));
+    rig.run(ms(3000));
+    assert_eq!(rig.servo(2).position, 500);
+    rig.servo(2).present = false;
+    rig.run(ms(500));
+    assert_eq!(rig.health(2), Health::Offline);
+    // Power-cycled while away: force OFF, goal 0.
+    rig.servo(2).power_cycle();
+    rig.servo(2).present = true;
+    let from = rig.log.len();
+    let ev_from = rig.events.len();
+    rig.run(ms(2500));
+    assert_eq!(rig.health(2), Health::Online);
+    let events = &rig.events[ev_from..];
+    assert!(events.contains(&BusEvent::ServoBack { id: id(2) }));
+    assert!(events.contains(&BusEvent::ServoOnline { id: id(2) }));
+    let kinds: Vec<TxKind> = rig
+        .kinds_since(from)
+        .into_iter()
+        .filter(
+            |k| matches!(k, TxKind::Probe(i) | TxKind::Init(i) | TxKind::Force(i) if *i == id(2)),
+        )
+        .collect();
+    let probe = kinds
+        .iter()
+        .rposition(|k| *k == TxKind::Probe(id(2)))
+        .unwrap();
+    assert_eq!(
+        &kinds[probe..],
+        &[
+            TxKind::Probe(id(2)),
+            TxKind::Init(id(2)),
+            TxKind::Force(id(2))
+        ],
+        "re-read then force ON again"
+    );
+    assert_eq!(rig.servo(2).force, 1);
+    assert_eq!(rig.servo(2).goal, 500, "its goal is sent again");
+}
+
+#[test]
+fn a_different_model_is_refused_and_never_commanded() {
+    let mut rig = Rig::with_ids(&[1, 2]);
+    rig.servo(2).model = 0x1234;
+    rig.run(ms(100));
+    assert_eq!(rig.health(2), Health::WrongModel);
+    assert!(rig.events.contains(&BusEvent::WrongModel {
+        id: id(2),
+        found: 0x1234
+    }));
+    assert_eq!(
+        BusEvent::WrongModel {
+            id: id(2),
+            found: 0x1234
+        }
+        .to_string(),
+        "servo 2 is model 0x1234, not an LJ9DA41 (0x7510): not commanded"
+    );
+    let from = rig.log.len();
+    rig.set_goal(1, Goal::Position(MmCenti(50)));
+    rig.set_goal(2, Goal::Position(MmCenti(50)));
+    rig.run(ms(500));
+    assert!(rig.sent_since(from).iter().all(|s| s.tx.bytes[2] != 2));
+    assert!(
+        rig.commands_since(from)
+            .iter()
+            .all(|c| c.iter().all(|e| e.0 != 2))
+    );
+    assert_eq!(rig.servo(2).force, 0);
+    assert_eq!(rig.servo(1).position, 50);
+}
+
+#[test]
+fn a_temperature_error_is_reported_and_force_on_is_not_retried() {
+    let mut rig = Rig::online_with_force(&[1, 2]);
+    rig.set_goal(1, Goal::Position(MmCenti(100)));
+    rig.run(ms(50));
+    // The servo overheats: error flag, force off, refuses force ON.
+    rig.servo(1).flags = 0x80 | 0x20;
+    rig.servo(1).force = 0;
+    let ev_from = rig.events.len();
+    // Learnt from the next reply of servo 1.
+    rig.run(ms(20));
+    let from = rig.log.len();
+    for k in 0..100 {
+        rig.set_goal(1, Goal::Position(MmCenti(200 + k)));
+        rig.set_goal(2, Goal::Position(MmCenti(200 + k)));
+        rig.run(ms(50));
+    }
+    let events = &rig.events[ev_from..];
+    assert!(events.contains(&BusEvent::TemperatureError { id: id(1) }));
+    assert!(events.contains(&BusEvent::TemperatureAlarm {
+        id: id(1),
+        on: true
+    }));
+    assert_eq!(rig.health(1), Health::TemperatureError);
+    assert!(
+        !rig.kinds_since(from).contains(&TxKind::Force(id(1))),
+        "no force-ON attempts"
+    );
+    assert!(
+        rig.commands_since(from)
+            .iter()
+            .all(|c| c.iter().all(|e| e.0 != 1))
+    );
+    assert!(
+        rig.kinds_since(from).contains(&TxKind::Poll(id(1))),
+        "still watched"
+    );
+    assert_eq!(rig.servo(2).position, 299, "the other servo keeps working");
+    // Power-cycled and cool again: re-initialised, force ON, goal sent.
+    rig.servo(1).power_cycle();
+    rig.run(ms(3000));
+    assert!(
+        rig.events[ev_from..].contains(&BusEvent::ServoRestarted { id: id(1) }),
+        "{:?}",
+        &rig.events[ev_from..]
+    );
+    assert_eq!(rig.health(1), Health::Online);
+    assert_eq!(rig.servo(1).force, 1);
+    assert_eq!(rig.servo(1).position, 299);
+}
+
+#[test]
+fn a_refused_force_on_is_retried_with_backoff() {
+    let mut rig = Rig::with_ids(&[1]);
+    rig.run(ms(100));
+    rig.servo(1).refuse_force = true;
+    let from = rig.log.len();
+    rig.set_goal(1, Goal::Position(MmCenti(10)));
+    rig.run(ms(4000));
+    let tries: Vec<Instant> = rig
+        .sent_since(from)
+        .iter()
+        .filter(|s| s.tx.kind == TxKind::Force(id(1)))
+        .map(|s| s.at)
+        .collect();
+    let gaps: Vec<u128> = tries
+        .windows(2)
+        .map(|w| (w[1] - w[0]).as_millis())
+        .collect();
+    assert_eq!(tries.len(), 4, "at 0, 0.5, 1.5 and 3.5 s: {gaps:?}");
+    for (gap, want) in gaps.iter().zip([500u128, 1000, 2000]) {
+        assert!(*gap >= want && *gap <= want + 10, "{gaps:?}");
+    }
+    assert_eq!(
+        rig.events
+            .iter()
+            .filter(|e| **e == BusEvent::ForceRefused { id: id(1) })
+            .count(),
+        1
+    );
+}
+
+#[test]
+fn a_stall_is_reported_after_the_configured_time_at_high_current() {
+    let mut rig = Rig::online_with_force(&[1]);
+    // Far from the goal but drawing little current: a slow move, not a stall.
+    rig.servo(1).stuck = true;
+    rig.set_goal(1, Goal::Position(MmCenti(1000)));
+    rig.run(ms(3000));
+    assert!(!rig.m.status().servo(id(1)).unwrap().stalled);
+    // High current at the goal: working against a load, not a stall.
+    rig.servo(1).stuck = false;
+    rig.set_goal(1, Goal::Position(MmCenti(1200)));
+    rig.servo(1).load = 300;
+    rig.run(ms(3000));
+    assert!(!rig.m.status().servo(id(1)).unwrap().stalled);
+    // A heavy load: high current and far from the goal, but closing in: not a stall.
+    rig.servo(1).stuck = true;
+    rig.set_goal(1, Goal::Position(MmCenti(-1000)));
+    for step in 1..=20 {
+        rig.servo(1).position = 1200 - step * 100;
+        rig.run(ms(50));
+    }
+    assert!(!rig.m.status().servo(id(1)).unwrap().stalled);
+    rig.servo(1).position = -1000;
+    rig.run(ms(50));
+    // Rod blocked and high current: stalled once it lasts 500 ms, not before.
+    rig.servo(1).stuck = true;
+    rig.set_goal(1, Goal::Position(MmCenti(-500)));
+    rig.run(ms(50));
+    let started = rig.t;
+    let ev_from = rig.events.len();
+    rig.run(ms(440));
+    assert!(!rig.events[ev_from..].contains(&BusEvent::Stalled {
+        id: id(1),
+        on: true
+    }));
+    rig.run(ms(100));
+    assert!(
+        rig.events[ev_from..].contains(&BusEvent::Stalled {
+            id: id(1),
+            on: true
+        }),
+        "stalled within {:?}",
+        rig.t - started
+    );
+    assert!(rig.m.status().servo(id(1)).unwrap().stalled);
+    // Freed: it follows, the stall clears.
+    rig.servo(1).stuck = false;
+    rig.servo(1).load = 20;
+    rig.set_goal(1, Goal::Position(MmCenti(-400)));
+    rig.run(ms(100));
+    assert!(rig.events.contains(&BusEvent::Stalled {
+        id: id(1),
+        on: false
+    }));
+    assert!(!rig.m.status().servo(id(1)).unwrap().stalled);
+}
+
+#[test]
+fn the_first_move_uses_a_soft_start_goal_time() {
+    let mut rig = Rig::with_ids(&[1, 2]);
+    rig.servo(1).position = -1000;
+    rig.servo(1).stuck = true; // the rod lags, as a slow move would
+    rig.servo(2).position = 500;
+    rig.run(ms(100));
+    let from = rig.log.len();
+    rig.set_goal(1, Goal::Position(MmCenti(1000)));
+    rig.set_goal(2, Goal::Position(MmCenti(500)));
+    rig.run(ms(100));
+    let commands = rig.commands_since(from);
+    // 20 mm at 10 mm/s = 2 s. Servo 2 is already at its goal: force ON was all it needed.
+    assert_eq!(commands, vec![vec![(1, 1000, Some(200))]]);
+    assert_eq!(rig.servo(2).force, 1);
+    assert_eq!(rig.servo(1).goal_writes, vec![(1000, Some(200))]);
+    // A goal that changes during the soft start is approached at the soft speed too …
+    rig.run(ms(900));
+    let from = rig.log.len();
+    rig.set_goal(1, Goal::Position(MmCenti(2000)));
+    rig.run(ms(30));
+    assert_eq!(
+        rig.commands_since(from)[0][0],
+        (1, 2000, Some(300)),
+        "30 mm at 10 mm/s"
+    );
+    // … but does not make it last longer than the first move's 2 s: then full speed, and once
+    // every goal-time register is zero the frames carry positions only.
+    rig.run(ms(1100));
+    rig.servo(1).stuck = false;
+    let from = rig.log.len();
+    rig.set_goal(1, Goal::Position(MmCenti(-2000)));
+    rig.run(ms(30));
+    rig.set_goal(1, Goal::Position(MmCenti(-1900)));
+    rig.run(ms(30));
+    let commands = rig.commands_since(from);
+    assert_eq!(commands[0], vec![(1, -2000, Some(0)), (2, 500, Some(0))]);
+    assert_eq!(commands[1], vec![(1, -1900, None), (2, 500, None)]);
+}
+
+#[test]
+fn a_goal_sent_again_carries_the_time_left_of_its_move() {
+    let mut cfg = config(&[1, 2]);
+    cfg.servos[0].goal_time = Some(Ms10(100)); // 1 s
+    cfg.soft_start_speed_mm_s = 0.0; // soft start off
+    let mut rig = Rig::new(cfg);
+    rig.run(ms(100));
+    rig.set_goal(1, Goal::Position(MmCenti(0)));
+    rig.set_goal(2, Goal::Position(MmCenti(0)));
+    rig.run(ms(100));
+    let from = rig.log.len();
+    rig.set_goal(1, Goal::Position(MmCenti(800)));
+    rig.run(ms(300));
+    rig.set_goal(2, Goal::Position(MmCenti(50)));
+    rig.run(ms(10));
+    let commands = rig.commands_since(from);
+    assert_eq!(commands.len(), 2);
+    assert_eq!(commands[0][0], (1, 800, Some(100)));
+    let (vid, pos, time) = commands[1][0];
+    assert_eq!((vid, pos), (1, 800));
+    let left = time.unwrap();
+    assert!((69..=71).contains(&left), "about 0.7 s left: {left}");
+    assert_eq!(commands[1][1], (2, 50, Some(0)));
+}
+
+#[test]
+fn long_packets_never_queue_more_than_one_frame_ahead_of_the_wire() {
+    let mut rig = Rig::online_with_force(&[1]);
+    // Nothing to poll (the only servo is offline): goals every 100 µs, far faster than frames.
+    rig.servo(1).present = false;
+    rig.run(ms(500));
+    assert_eq!(rig.health(1), Health::Offline);
+    let from = rig.log.len();
+    let start = rig.t;
+    let mut queued_ahead = Vec::new();
+    for k in 0..2000 {
+        rig.set_goal(1, Goal::Position(MmCenti(k % 500)));
+        let before = rig.wire_free;
+        let n = rig.log.len();
+        rig.run(us(100));
+        if rig.log[n..].iter().any(|s| s.tx.kind == TxKind::Command) {
+            queued_ahead.push(before.saturating_duration_since(rig.log[n].at));
+        }
+    }
+    let frame = wire(8 + 3);
+    let frames = rig.commands_since(from).len() as u32;
+    let elapsed = rig.t - start;
+    assert!(
+        queued_ahead.iter().all(|q| *q <= wire(8 + 5)),
+        "at most one frame queued: {:?}",
+        queued_ahead.iter().max()
+    );
+    assert!(
+        frames <= elapsed.div_duration_f64(frame).ceil() as u32 + 1,
+        "{frames}"
+    );
+    assert!(frames > 100, "the wire is kept busy: {frames}");
+}
+
+#[test]
+fn goals_are_coalesced_and_counted() {
+    let mut rig = Rig::online_with_force(&[1, 2]);
+    rig.run(ms(1));
+    assert!(rig.m.reply_pending());
+    let before = *rig.m.counters();
+    let from = rig.log.len();
+    for k in 1..=5 {
+        rig.set_goal(1, Goal::Position(MmCenti(k * 10)));
+    }
+    rig.set_goal(2, Goal::Position(MmCenti(0))); // unchanged
+    rig.set_goal(9, Goal::Position(MmCenti(0))); // not on this bus
+    rig.run(ms(5));
+    let commands = rig.commands_since(from);
+    assert_eq!(commands.len(), 1);
+    assert_eq!(commands[0], vec![(1, 50, None), (2, 0, None)]);
+    let c = rig.m.counters();
+    assert_eq!(c.goals_received - before.goals_received, 6);
+    assert_eq!(c.goals_superseded - before.goals_superseded, 4);
+    assert_eq!(c.goals_sent - before.goals_sent, 1);
+    assert_eq!(c.goals_unchanged - before.goals_unchanged, 1);
+    assert_eq!(c.goals_unknown_id - before.goals_unknown_id, 1);
+}
+
+#[test]
+fn telemetry_polls_go_round_robin_and_are_published() {
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    rig.servo(3).position = 77;
+    rig.servo(3).load = 42;
+    rig.servo(3).temperature = 51;
+    rig.servo(3).voltage = 1111;
+    rig.servo(3).flags = 0x20 | 0x02;
+    let from = rig.log.len();
+    rig.run(ms(200));
+    let polled: Vec<u8> = rig
+        .sent_since(from)
+        .iter()
+        .filter_map(|s| match s.tx.kind {
+            TxKind::Poll(i) => Some(i.get()),
+            _ => None,
+        })
+        .collect();
+    assert!(polled.len() >= 40, "{}", polled.len());
+    for w in polled.windows(2) {
+        assert_eq!(w[1], w[0] % 4 + 1, "{polled:?}");
+    }
+    let st = rig.m.status();
+    let s3 = st.servo(id(3)).unwrap();
+    let t = s3.telemetry.unwrap();
+    assert_eq!(t.present_position, MmCenti(77));
+    assert_eq!(t.present_load, Ma10(42));
+    assert_eq!(t.present_temperature.0, 51);
+    assert_eq!(t.present_voltage.0, 1111);
+    assert_eq!(s3.flags, ReplyFlags(0x20), "bit 1 ignored");
+    assert!(s3.age.unwrap() < ms(20));
+    assert_eq!(s3.health, Health::Online);
+    // With no replies for longer than stale_after (but fewer timeouts than needed for
+    // offline), the servo is stale.
+    let mut m = rig.m;
+    let later = rig.t + ms(600);
+    m.handle_timeout(later);
+    assert_eq!(m.status().servo(id(3)).unwrap().health, Health::Stale);
+    assert!(m.status().servo(id(3)).unwrap().age.unwrap() >= ms(600));
+}
+
+#[test]
+fn hold_sends_nothing_and_off_and_brake_switch_force() {
+    let mut rig = Rig::online_with_force(&[1, 2]);
+    rig.set_goal(1, Goal::Position(MmCenti(300)));
+    rig.run(ms(20));
+    let from = rig.log.len();
+    rig.set_goal(1, Goal::Hold);
+    rig.set_goal(2, Goal::Position(MmCenti(40)));
+    rig.run(ms(20));
+    let commands = rig.commands_since(from);
+    assert_eq!(commands, vec![vec![(2, 40, None)]], "held servo left out");
+    assert_eq!(rig.servo(1).position, 300);
+    assert_eq!(rig.servo(1).force, 1);
+    rig.set_goal(1, Goal::Off);
+    rig.run(ms(20));
+    assert_eq!(rig.servo(1).force, 0);
+    assert_eq!(rig.m.status().servo(id(1)).unwrap().force, ForceState::Off);
+    rig.set_goal(1, Goal::Brake);
+    rig.run(ms(20));
+    assert_eq!(rig.servo(1).force, 2);
+    // Back to a position: force ON again, with a soft start.
+    let from = rig.log.len();
+    rig.set_goal(1, Goal::Position(MmCenti(500)));
+    rig.run(ms(30));
+    assert!(rig.kinds_since(from).contains(&TxKind::Force(id(1))));
+    assert_eq!(rig.servo(1).force, 1);
+    let commands = rig.commands_since(from);
+    assert_eq!(commands[0][0], (1, 500, Some(20)), "2 mm at 10 mm/s");
+}
+
+#[test]
+fn goals_are_clamped_to_the_servo_limits() {
+    let mut rig = Rig::with_ids(&[1]);
+    rig.servo(1).plus = 1500;
+    rig.run(ms(100));
+    rig.set_goal(1, Goal::Position(MmCenti(i16::MAX)));
+    rig.run(ms(3000));
+    assert_eq!(rig.servo(1).goal_writes.last().unwrap().0, 1500);
+    assert_eq!(
+        rig.m.status().servo(id(1)).unwrap().goal,
+        Some(MmCenti(1500))
+    );
+    // A goal given before the limits were read is clamped to them too.
+    let mut rig = Rig::with_ids(&[1]);
+    rig.servo(1).minus = -800;
+    rig.set_goal(1, Goal::Position(MmCenti(-2400)));
+    rig.run(ms(4000));
+    assert_eq!(rig.servo(1).goal_writes.last().unwrap().0, -800);
+    assert_eq!(rig.servo(1).position, -800);
+}
+
+#[test]
+fn echoes_and_garbage_on_the_line_are_skipped() {
+    let mut rig = Rig::with_ids(&[1, 2]);
+    rig.echo = true;
+    rig.noise = vec![0x00, 0xFF, 0x07, 0xFD, 0x11, 0xFA, 0x12, 0x34];
+    rig.run(ms(100));
+    rig.set_goal(1, Goal::Position(MmCenti(100)));
+    rig.set_goal(2, Goal::Position(MmCenti(-100)));
+    rig.run(ms(3000));
+    assert_eq!(rig.health(1), Health::Online);
+    assert_eq!(rig.health(2), Health::Online);
+    assert_eq!(rig.servo(1).position, 100);
+    assert_eq!(rig.servo(2).position, -100);
+    let c = rig.m.counters();
+    assert_eq!(c.timeouts, 0);
+    assert_eq!(
+        c.echoes,
+        rig.log.len() as u64,
+        "every packet's echo skipped"
+    );
+    assert!(c.garbage_bytes >= 8 * (c.telemetry_replies), "{c:?}");
+}
+
+#[test]
+fn a_corrupted_reply_is_counted_and_times_out() {
+    let mut rig = Rig::with_ids(&[1]);
+    let t0 = rig.t0;
+    let _ = rig.m.poll_transmit(t0).unwrap();
+    let mut reply = ReturnPacket {
+        id: 1,
+        flags: ReplyFlags(0),
+        address: 0,
+        data: rig.servo(1).regs()[..30].to_vec(),
+    }
+    .to_bytes();
+    let last = reply.len() - 1;
+    reply[last] ^= 0x55;
+    rig.m.handle_input(&reply, t0 + ms(4));
+    assert!(rig.m.reply_pending());
+    assert_eq!(rig.m.counters().bad_sums, 1);
+    let deadline = rig.m.poll_timeout().unwrap();
+    rig.m.handle_timeout(deadline);
+    assert!(!rig.m.reply_pending());
+    assert_eq!(rig.m.counters().timeouts, 1);
+}
+
+#[test]
+fn a_reply_from_another_servo_is_not_taken_for_the_one_awaited() {
+    let mut rig = Rig::with_ids(&[1]);
+    let t0 = rig.t0;
+    let _ = rig.m.poll_transmit(t0).unwrap();
+    let mut other = FakeServo::new(7);
+    let reply = other.handle(&[0xFA, 0xAF, 7, 0x03, 0, 0, 1, 0x05]).unwrap();
+    rig.m.handle_input(&reply, t0 + ms(4));
+    assert!(rig.m.reply_pending());
+    assert_eq!(rig.m.counters().unexpected_replies, 1);
+}
+
+#[test]
+fn a_servo_found_force_off_is_reinitialised() {
+    let mut rig = Rig::online_with_force(&[1]);
+    rig.set_goal(1, Goal::Position(MmCenti(700)));
+    rig.run(ms(2000));
+    // A quick power cycle: no reply missed, but force is off and the goal is gone.
+    rig.servo(1).power_cycle();
+    rig.run(ms(1500));
+    assert!(rig.events.contains(&BusEvent::ServoRestarted { id: id(1) }));
+    assert_eq!(rig.servo(1).force, 1);
+    assert_eq!(rig.servo(1).goal, 700);
+}
+
+#[test]
+fn a_lost_long_packet_is_noticed_by_the_read_back() {
+    let mut rig = Rig::online_with_force(&[1]);
+    rig.set_goal(1, Goal::Position(MmCenti(700)));
+    rig.run(ms(2000));
+    // The servo's goal register differs from what was sent (a frame lost to noise).
+    rig.servo(1).goal = 123;
+    rig.servo(1).position = 123;
+    rig.run(ms(1500));
+    assert_eq!(rig.servo(1).goal, 700);
+}
+
+#[test]
+fn a_lost_port_drops_the_pending_reply_and_resends_goals_when_back() {
+    let mut rig = Rig::online_with_force(&[1, 2]);
+    rig.set_goal(1, Goal::Position(MmCenti(10)));
+    rig.run(ms(10));
+    assert!(rig.m.reply_pending());
+    let t = rig.t;
+    rig.m.handle_port_lost("read failed: EIO", t);
+    rig.reply = None;
+    assert!(!rig.m.reply_pending());
+    assert!(!rig.m.status().port_open);
+    assert_eq!(
+        rig.m.poll_event(),
+        Some(BusEvent::PortLost {
+            reason: "read failed: EIO".into()
+        })
+    );
+    let timeouts = rig.m.counters().timeouts;
+    rig.t = t + ms(300);
+    rig.m.handle_port_back(rig.t);
+    rig.wire_free = rig.t;
+    assert_eq!(rig.m.poll_event(), Some(BusEvent::PortBack));
+    let from = rig.log.len();
+    rig.run(ms(20));
+    assert_eq!(
+        rig.m.counters().timeouts,
+        timeouts,
+        "a lost port is not a timeout"
+    );
+    assert_eq!(rig.kinds_since(from)[0], TxKind::Command, "goals first");
+    assert_eq!(
+        rig.commands_since(from)[0],
+        vec![(1, 10, None), (2, 0, None)]
+    );
+}
+
+#[test]
+fn shutdown_waits_for_the_pending_reply_then_switches_force_off() {
+    let mut rig = Rig::online_with_force(&[1, 2]);
+    rig.run(ms(1));
+    assert!(rig.m.reply_pending());
+    rig.m.shutdown(ShutdownForce::Off);
+    assert!(rig.m.poll_transmit(rig.t).is_none(), "reply still pending");
+    assert!(!rig.m.is_shut_down());
+    let from = rig.log.len();
+    rig.run(ms(20));
+    let kinds = rig.kinds_since(from);
+    assert_eq!(
+        kinds,
+        vec![TxKind::Final(Some(id(1))), TxKind::Final(Some(id(2)))]
+    );
+    assert!(rig.m.is_shut_down());
+    assert_eq!(rig.servo(1).force, 0);
+    assert_eq!(rig.servo(2).force, 0);
+
+    let mut rig = Rig::online_with_force(&[1, 2]);
+    rig.run(ms(1));
+    rig.set_goal(2, Goal::Position(MmCenti(-5)));
+    rig.m.shutdown(ShutdownForce::AsIs);
+    let from = rig.log.len();
+    rig.run(ms(100));
+    assert_eq!(
+        rig.kinds_since(from),
+        vec![TxKind::Command],
+        "newest goals, then nothing"
+    );
+    assert_eq!(rig.servo(2).position, -5);
+    assert_eq!(rig.servo(2).force, 1);
+}
+
+#[test]
+fn a_servo_missing_at_startup_is_reported_lost() {
+    let mut rig = Rig::with_ids(&[1, 2]);
+    rig.servo(2).present = false;
+    rig.run(ms(200));
+    assert_eq!(rig.health(2), Health::Offline);
+    assert!(rig.events.contains(&BusEvent::ServoLost { id: id(2) }));
+    assert_eq!(rig.health(1), Health::Online);
+}
+
+mod properties {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+
+        /// Whatever arrives, whenever: no panic, and never a transmit while a reply is pending.
+        #[test]
+        fn any_bytes_goals_and_times_never_panic(
+            steps in proptest::collection::vec(
+                (0u8..4, proptest::collection::vec(any::<u8>(), 0..40), 0u64..5000, any::<i16>(), 1u8..4),
+                1..80,
+            )
+        ) {
+            let mut m = BusMaster::new(config(&[1, 2, 3]), Instant::now());
+            let mut t = Instant::now();
+            for (what, bytes, dt, pos, n) in steps {
+                t += us(dt);
+                match what {
+                    0 => m.handle_input(&bytes, t),
+                    1 => m.set_goal(id(n), Goal::Position(MmCenti(pos)), t),
+                    2 => m.handle_timeout(t),
+                    _ => {
+                        let pending = m.reply_pending();
+                        if let Some(tx) = m.poll_transmit(t) {
+                            prop_assert!(!pending);
+                            prop_assert!(!tx.bytes.is_empty());
+                        }
+                    }
+                }
+                let _ = m.poll_timeout();
+                while m.poll_event().is_some() {}
+                let _ = m.status();
+            }
+        }
+    }
+}

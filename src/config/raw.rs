@@ -1,0 +1,87 @@
+//! The mapping file as written, before validation: every key the file may contain, each value
+//! kept with its position so that a refusal can point at it. Unknown keys are refused here, so a
+//! typo never silently becomes a default. Numbers are read wide (`i64`, `f64`) so that a value
+//! out of range is reported with its own range rather than as a type error.
+
+use serde::Deserialize;
+use toml::Spanned;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawFile {
+    pub mavlink: Option<Spanned<RawMavlink>>,
+    pub telemetry: Option<Spanned<RawTelemetry>>,
+    pub bridge: Option<Spanned<RawBridge>>,
+    pub record: Option<Spanned<RawRecord>>,
+    #[serde(default)]
+    pub bus: Vec<Spanned<RawBus>>,
+    #[serde(default)]
+    pub servo: Vec<Spanned<RawServo>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawMavlink {
+    pub connection: Spanned<String>,
+    pub system_id: Option<Spanned<i64>>,
+    pub autopilot_system_id: Option<Spanned<i64>>,
+    pub autopilot_component_id: Option<Spanned<i64>>,
+    pub component_id: Option<Spanned<i64>>,
+    pub source: Option<Spanned<String>>,
+    pub output_rate_hz: Option<Spanned<f64>>,
+    pub failsafe_timeout_ms: Option<Spanned<i64>>,
+    pub gcs: Option<Spanned<String>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawTelemetry {
+    pub rate_hz: Option<Spanned<f64>>,
+    pub named_value_float: Option<bool>,
+    pub esc: Option<bool>,
+    pub statustext: Option<bool>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawBridge {
+    pub on_exit: Option<Spanned<String>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawRecord {
+    pub enabled: Option<bool>,
+    pub dir: Option<Spanned<String>>,
+    pub max_total_mb: Option<Spanned<i64>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawBus {
+    pub name: Spanned<String>,
+    pub port: Spanned<String>,
+    pub baud: Option<Spanned<i64>>,
+    pub turnaround_ms: Option<Spanned<f64>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawServo {
+    pub name: Spanned<String>,
+    pub label: Option<Spanned<String>>,
+    pub bus: Spanned<String>,
+    pub id: Spanned<i64>,
+    pub channel: Spanned<i64>,
+    pub pwm_min_us: Option<Spanned<i64>>,
+    pub pwm_trim_us: Option<Spanned<i64>>,
+    pub pwm_max_us: Option<Spanned<i64>>,
+    pub travel_mm: Option<Spanned<Vec<f64>>>,
+    pub min_mm: Option<Spanned<f64>>,
+    pub max_mm: Option<Spanned<f64>>,
+    pub reverse: Option<bool>,
+    pub goal_time_ms: Option<Spanned<i64>>,
+    pub max_force_percent: Option<Spanned<i64>>,
+    pub failsafe: Option<Spanned<toml::Value>>,
+    pub actuator: Option<Spanned<i64>>,
+}

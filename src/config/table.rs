@@ -1,0 +1,162 @@
+//! The resolved table that `lj9da-bridge check` prints: every default filled in, every mapping
+//! evaluated, so that what the bridge will do can be read before it does it.
+
+use super::Config;
+use super::servo::ServoConfig;
+
+pub(super) fn resolved_table(config: &Config) -> String {
+    let m = &config.mavlink;
+    let system = match (m.system_id, m.autopilot_system_id) {
+        (Some(own), Some(autopilot)) if own != autopilot => {
+            format!("bridge system id {own}, autopilot system id {autopilot}")
+        }
+        (own, autopilot) => own.or(autopilot).map_or_else(
+            || "system id from the first autopilot heartbeat".to_string(),
+            |id| format!("system id {id}"),
+        ),
+    };
+    let mut out = format!(
+        "mavlink: {} | {system} | autopilot component {} | bridge component {}\n",
+        m.connection, m.autopilot_component_id, m.component_id
+    );
+    out.push_str(&format!(
+        "outputs: {} requested at {} Hz | failsafe after {} ms without outputs\n",
+        m.source, m.output_rate_hz, m.failsafe_timeout_ms
+    ));
+    let t = &config.telemetry;
+    let carriers: Vec<&str> = [
+        (t.named_value_float, "NAMED_VALUE_FLOAT"),
+        (t.esc, "ESC_INFO/ESC_STATUS"),
+        (t.statustext, "STATUSTEXT"),
+    ]
+    .into_iter()
+    .filter_map(|(on, name)| on.then_some(name))
+    .collect();
+    out.push_str(&format!(
+        "telemetry: {} Hz: {} | extra GCS output: {} | on exit: {}\n\n",
+        t.rate_hz,
+        if carriers.is_empty() {
+            "HEARTBEAT only".to_string()
+        } else {
+            carriers.join(", ")
+        },
+        m.gcs.as_deref().unwrap_or("none"),
+        config.bridge.on_exit
+    ));
+
+    let mut buses = vec![row(["bus", "port", "baud", "turnaround", "servos"])];
+    for bus in &config.buses {
+        buses.push(vec![
+            bus.name.clone(),
+            bus.port.display().to_string(),
+            bus.baud.to_string(),
+            bus.turnaround_ms
+                .map_or("default".to_string(), |ms| format!("{ms} ms")),
+            config.servos_on(&bus.name).count().to_string(),
+        ]);
+    }
+    out.push_str(&aligned(&buses));
+    out.push('\n');
+
+    let mut servos = vec![row([
+        "servo",
+        "label",
+        "bus",
+        "id",
+        "ch",
+        "rev",
+        "µs → mm at min/trim/max",
+        "travel mm",
+        "failsafe",
+        "force",
+        "goal time",
+        "actuator",
+    ])];
+    for s in &config.servos {
+        servos.push(vec![
+            s.name.clone(),
+            s.label.clone(),
+            s.bus.clone(),
+            s.id.to_string(),
+            s.channel.to_string(),
+            if s.reverse { "yes" } else { "no" }.to_string(),
+            pwm_points(s),
+            format!(
+                "{:+.2}..{:+.2}",
+                s.travel.minus().mm(),
+                s.travel.plus().mm()
+            ),
+            s.failsafe.to_string(),
+            s.max_force_percent
+                .map_or("servo's".to_string(), |p| p.to_string()),
+            s.goal_time_ms
+                .map_or("none".to_string(), |ms| format!("{ms} ms")),
+            s.actuator.map_or("-".to_string(), |n| n.to_string()),
+        ]);
+    }
+    out.push_str(&aligned(&servos));
+    out
+}
+
+/// `920→-25.00 1520→+0.00 2120→+25.00`: the resolved position at the range's three points.
+fn pwm_points(servo: &ServoConfig) -> String {
+    [servo.pwm.min_us, servo.pwm.trim_us, servo.pwm.max_us]
+        .into_iter()
+        .map(|us| match servo.map_pwm(us) {
+            Some(p) => format!("{us}→{:+.2}", p.mm()),
+            None => format!("{us}→hold"),
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+fn row<const N: usize>(cells: [&str; N]) -> Vec<String> {
+    cells.iter().map(|c| c.to_string()).collect()
+}
+
+/// Rows as columns separated by two spaces, each as wide as its widest cell (in characters).
+fn aligned(rows: &[Vec<String>]) -> String {
+    let columns = rows.iter().map(Vec::len).max().unwrap_or(0);
+    let widths: Vec<usize> = (0..columns)
+        .map(|c| {
+            rows.iter()
+                .filter_map(|r| r.get(c))
+                .map(|cell| cell.chars().count())
+                .max()
+                .unwrap_or(0)
+        })
+        .collect();
+    let mut out = String::new();
+    for r in rows {
+        let mut line = String::new();
+        for (cell, width) in r.iter().zip(&widths) {
+            line.push_str(cell);
+            line.push_str(&" ".repeat(width - cell.chars().count() + 2));
+        }
+        out.push_str(line.trim_end());
+        out.push('\n');
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn columns_are_aligned_by_characters() {
+        let rows = vec![row(["µs", "b"]), row(["abcd", "e"])];
+        assert_eq!(aligned(&rows), "µs    b\nabcd  e\n");
+    }
+
+    #[test]
+    fn the_sitl_table_shows_the_pwm_law_at_its_three_points() {
+        let table = Config::default_sitl().resolved_table();
+        assert!(
+            table.contains("920→-25.00 1520→+0.00 2120→+25.00"),
+            "{table}"
+        );
+        assert!(table.contains("aileron_left"), "{table}");
+        assert!(table.contains("115200 bit/s"), "{table}");
+    }
+}

@@ -1,0 +1,534 @@
+//! The bridge's MAVLink logic, sans-IO: it is handed MAVLink messages, servo reports, events
+//! and the time, and answers with servo commands and MAVLink messages to send. It never touches
+//! a socket or reads the clock, so every rule below is tested at exact instants.
+//!
+//! Rules:
+//! - Only output messages from the autopilot (configured, or learned from the first
+//!   autopilot HEARTBEAT) are obeyed; commands are obeyed when addressed to the bridge.
+//! - Each output channel maps to its servos through the PWM-mode law of the mapping file; a
+//!   value that means "no output" makes the servo hold.
+//! - The output stream is requested with MAV_CMD_SET_MESSAGE_INTERVAL until it arrives; a
+//!   denied rate is retried lower, and the user is told which parameter limits it.
+//! - No output message for the failsafe timeout: each servo takes its failsafe action; the
+//!   first output message ends it. Both are announced.
+//! - HEARTBEAT at 1 Hz, servo telemetry at the configured rate, STATUSTEXT once per event.
+
+use super::health::{BridgeEvent, ServoReport};
+use super::outputs::{ChannelValues, from_actuator_output_status, from_servo_output_raw};
+use super::statustext::{Throttle, describe, with_folded};
+use super::telemetry;
+use crate::bus::Goal;
+use crate::config::{Config, FailsafeAction, Source};
+use mavlink::MavHeader;
+use mavlink::dialects::common::{
+    COMMAND_ACK_DATA, COMMAND_LONG_DATA, MavAutopilot, MavCmd, MavMessage, MavResult, MavType,
+};
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+/// Which MAVLink link a message came in on or goes out on (0 = the autopilot's link).
+pub type LinkId = usize;
+pub const AUTOPILOT_LINK: LinkId = 0;
+
+/// A message to send: on one link, or on every link.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outgoing {
+    pub message: MavMessage,
+    pub link: Option<LinkId>,
+}
+
+/// Rates tried, highest first, after the autopilot denies the requested one. ArduPilot denies
+/// anything above 0.8 × SCHED_LOOP_RATE (40 Hz on a stock 50 Hz Plane).
+const FALLBACK_RATES_HZ: [f32; 6] = [40.0, 25.0, 20.0, 10.0, 5.0, 2.0];
+const STREAM_REQUEST_PERIOD: Duration = Duration::from_secs(1);
+const HEARTBEAT_PERIOD: Duration = Duration::from_secs(1);
+const STATUSTEXT_HOLD_OFF: Duration = Duration::from_secs(3);
+
+/// MAVLink message ids of the two output messages.
+const SERVO_OUTPUT_RAW_ID: u32 = 36;
+const ACTUATOR_OUTPUT_STATUS_ID: u32 = 375;
+
+#[derive(Debug)]
+struct ServoSlot {
+    channel: u8,
+    /// The autopilot's value of the channel when a command overrode it: the override holds
+    /// until the autopilot's own output for the channel changes.
+    override_latch: Option<Option<u16>>,
+    last_command: Option<Goal>,
+}
+
+/// See the module docs.
+#[derive(Debug)]
+pub struct BridgeCore {
+    cfg: Config,
+    started: Instant,
+    system_id: Option<u8>,
+    autopilot: Option<(u8, u8)>,
+    servos: Vec<ServoSlot>,
+    /// Latest value of every channel 1–32 from the autopilot.
+    channels: [Option<u16>; 33],
+    last_output_at: Option<Instant>,
+    failsafe: bool,
+    /// The stream runs as asked: the autopilot accepted the rate, or it arrives at ≥ 70 % of it.
+    stream_ok: bool,
+    /// Output messages counted since `rate_window_start`, to measure the stream's rate.
+    rate_window: (Instant, u32),
+    requested_rate_hz: f32,
+    next_stream_request: Instant,
+    next_heartbeat: Instant,
+    next_telemetry: Instant,
+    esc_counter: u16,
+    throttle: Throttle,
+    commands: VecDeque<(usize, Goal)>,
+    outgoing: VecDeque<Outgoing>,
+    notes: Vec<String>,
+}
+
+impl BridgeCore {
+    pub fn new(cfg: Config, now: Instant) -> Self {
+        let servos = cfg
+            .servos
+            .iter()
+            .map(|s| ServoSlot {
+                channel: s.channel,
+                override_latch: None,
+                last_command: None,
+            })
+            .collect();
+        Self {
+            system_id: cfg.mavlink.system_id,
+            autopilot: cfg
+                .mavlink
+                .autopilot_system_id
+                .map(|sys| (sys, cfg.mavlink.autopilot_component_id)),
+            requested_rate_hz: cfg.mavlink.output_rate_hz,
+            servos,
+            cfg,
+            started: now,
+            channels: [None; 33],
+            last_output_at: None,
+            failsafe: false,
+            stream_ok: false,
+            rate_window: (now, 0),
+            next_stream_request: now,
+            next_heartbeat: now,
+            next_telemetry: now,
+            esc_counter: 0,
+            throttle: Throttle::new(STATUSTEXT_HOLD_OFF),
+            commands: VecDeque::new(),
+            outgoing: VecDeque::new(),
+            notes: Vec::new(),
+        }
+    }
+
+    /// The header of the bridge's own messages, once the vehicle's system id is known.
+    pub fn header(&self) -> Option<MavHeader> {
+        Some(MavHeader {
+            system_id: u32::from(self.system_id?),
+            component_id: self.cfg.mavlink.component_id,
+            sequence: 0,
+        })
+    }
+
+    pub fn autopilot(&self) -> Option<(u8, u8)> {
+        self.autopilot
+    }
+
+    pub fn in_failsafe(&self) -> bool {
+        self.failsafe
+    }
+
+    /// The output rate being asked for now (lower than configured after a denial).
+    pub fn requested_rate_hz(&self) -> f32 {
+        self.requested_rate_hz
+    }
+
+    /// Messages for the user about the autopilot link (e.g. which parameter limits the rate).
+    pub fn take_notes(&mut self) -> Vec<String> {
+        std::mem::take(&mut self.notes)
+    }
+
+    /// A message arrived on `link`.
+    pub fn handle_message(
+        &mut self,
+        link: LinkId,
+        header: &MavHeader,
+        msg: &MavMessage,
+        now: Instant,
+    ) {
+        // MAVLink system ids are one byte on the wire; a larger one is no peer of ours.
+        let Ok(system_id) = u8::try_from(header.system_id) else {
+            return;
+        };
+        let from = (system_id, header.component_id);
+        if let MavMessage::HEARTBEAT(hb) = msg {
+            if self.autopilot.is_none()
+                && hb.autopilot != MavAutopilot::MAV_AUTOPILOT_INVALID
+                && hb.mavtype != MavType::MAV_TYPE_GCS
+                && header.component_id == self.cfg.mavlink.autopilot_component_id
+            {
+                self.autopilot = Some(from);
+                self.system_id.get_or_insert(system_id);
+                self.next_stream_request = now;
+                tracing::info!(system = from.0, component = from.1, "autopilot found");
+            }
+            return;
+        }
+        if let MavMessage::COMMAND_LONG(cmd) = msg {
+            self.handle_command(link, from, cmd);
+            return;
+        }
+        if let MavMessage::COMMAND_ACK(ack) = msg {
+            let to_us =
+                ack.target_component == 0 || ack.target_component == self.cfg.mavlink.component_id;
+            if Some(from) == self.autopilot
+                && ack.command == MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
+                && to_us
+            {
+                self.handle_interval_ack(ack.result);
+            }
+            return;
+        }
+        if Some(from) != self.autopilot {
+            return;
+        }
+        let values = match (msg, self.cfg.mavlink.source) {
+            (MavMessage::SERVO_OUTPUT_RAW(m), Source::ServoOutputRaw) => from_servo_output_raw(m),
+            (MavMessage::ACTUATOR_OUTPUT_STATUS(m), Source::ActuatorOutputStatus) => {
+                from_actuator_output_status(m)
+            }
+            _ => return,
+        };
+        self.handle_outputs(&values, now);
+    }
+
+    fn handle_outputs(&mut self, values: &ChannelValues, now: Instant) {
+        self.last_output_at = Some(now);
+        self.measure_rate(now);
+        if self.failsafe {
+            self.failsafe = false;
+            self.event(BridgeEvent::FailsafeLeft, now);
+        }
+        for (channel, us) in values.iter() {
+            if let Some(slot) = self.channels.get_mut(usize::from(channel)) {
+                *slot = Some(us);
+            }
+        }
+        for i in 0..self.servos.len() {
+            let channel = self.servos[i].channel;
+            let Some(us) = values.get(channel) else {
+                continue;
+            };
+            if let Some(latched) = self.servos[i].override_latch {
+                if latched == Some(us) {
+                    continue;
+                }
+                self.servos[i].override_latch = None;
+            }
+            let command = match self.cfg.servos[i].map_pwm(us) {
+                Some(position) => Goal::Position(position),
+                None => Goal::Hold,
+            };
+            self.command(i, command);
+        }
+    }
+
+    /// Count the stream's messages over windows of two seconds; a window at ≥ 70 % of the
+    /// requested rate means the stream runs as asked, whether or not an ACK said so.
+    fn measure_rate(&mut self, now: Instant) {
+        let (start, count) = &mut self.rate_window;
+        *count += 1;
+        let window = now.duration_since(*start);
+        if window >= Duration::from_secs(2) {
+            let hz = *count as f32 / window.as_secs_f32();
+            if hz >= 0.7 * self.requested_rate_hz {
+                self.stream_ok = true;
+            }
+            self.rate_window = (now, 0);
+        }
+    }
+
+    fn command(&mut self, servo: usize, command: Goal) {
+        let slot = &mut self.servos[servo];
+        if slot.last_command != Some(command) {
+            slot.last_command = Some(command);
+            self.commands.push_back((servo, command));
+        }
+    }
+
+    fn handle_command(&mut self, link: LinkId, from: (u8, u8), cmd: &COMMAND_LONG_DATA) {
+        let Some(system_id) = self.system_id else {
+            return;
+        };
+        if cmd.target_system != system_id || cmd.target_component != self.cfg.mavlink.component_id {
+            return;
+        }
+        let result = match cmd.command {
+            MavCmd::MAV_CMD_DO_SET_SERVO => self.do_set_servo(cmd.param1, cmd.param2),
+            MavCmd::MAV_CMD_DO_SET_ACTUATOR => self.do_set_actuator(cmd),
+            _ => MavResult::MAV_RESULT_UNSUPPORTED,
+        };
+        self.outgoing.push_back(Outgoing {
+            message: MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+                command: cmd.command,
+                result,
+                progress: 0,
+                result_param2: 0,
+                target_system: from.0,
+                target_component: from.1,
+            }),
+            link: Some(link),
+        });
+    }
+
+    /// MAV_CMD_DO_SET_SERVO: param 1 = output channel, param 2 = PWM in µs.
+    fn do_set_servo(&mut self, channel: f32, us: f32) -> MavResult {
+        let valid = (1.0..=32.0).contains(&channel) && (0.0..=65535.0).contains(&us);
+        if !valid {
+            return MavResult::MAV_RESULT_DENIED;
+        }
+        let (channel, us) = (channel.round() as u8, us.round() as u16);
+        let targets: Vec<usize> = (0..self.servos.len())
+            .filter(|i| self.servos[*i].channel == channel)
+            .collect();
+        if targets.is_empty() {
+            return MavResult::MAV_RESULT_DENIED;
+        }
+        for i in targets {
+            let command = match self.cfg.servos[i].map_pwm(us) {
+                Some(position) => Goal::Position(position),
+                None => Goal::Hold,
+            };
+            self.servos[i].override_latch = Some(self.channels[usize::from(channel)]);
+            self.command(i, command);
+        }
+        MavResult::MAV_RESULT_ACCEPTED
+    }
+
+    /// MAV_CMD_DO_SET_ACTUATOR: params 1–6 = −1…+1 for actuators 1–6 of the set in param 7
+    /// (set 0 = actuators 1–6, set 1 = 7–12, …); NaN leaves an actuator as it is.
+    fn do_set_actuator(&mut self, cmd: &COMMAND_LONG_DATA) -> MavResult {
+        if !cmd.param7.is_finite() || cmd.param7 < 0.0 || cmd.param7 > 20.0 {
+            return MavResult::MAV_RESULT_DENIED;
+        }
+        let set = cmd.param7.round() as u16;
+        let params = [
+            cmd.param1, cmd.param2, cmd.param3, cmd.param4, cmd.param5, cmd.param6,
+        ];
+        let mut matched = false;
+        for (k, value) in params.into_iter().enumerate() {
+            let actuator = set * 6 + k as u16 + 1;
+            if value.is_nan() {
+                continue;
+            }
+            for i in 0..self.servos.len() {
+                if self.cfg.servos[i].actuator.map(u16::from) != Some(actuator) {
+                    continue;
+                }
+                matched = true;
+                let command = match self.cfg.servos[i].map_normalized(value) {
+                    Some(position) => Goal::Position(position),
+                    None => Goal::Hold,
+                };
+                let channel = usize::from(self.servos[i].channel);
+                self.servos[i].override_latch = Some(self.channels.get(channel).copied().flatten());
+                self.command(i, command);
+            }
+        }
+        if matched {
+            MavResult::MAV_RESULT_ACCEPTED
+        } else {
+            MavResult::MAV_RESULT_DENIED
+        }
+    }
+
+    fn handle_interval_ack(&mut self, result: MavResult) {
+        if result == MavResult::MAV_RESULT_ACCEPTED {
+            self.stream_ok = true;
+            return;
+        }
+        if matches!(
+            result,
+            MavResult::MAV_RESULT_IN_PROGRESS | MavResult::MAV_RESULT_TEMPORARILY_REJECTED
+        ) {
+            return;
+        }
+        let denied = self.requested_rate_hz;
+        let Some(next) = FALLBACK_RATES_HZ.into_iter().find(|r| *r < denied) else {
+            // Nothing lower to ask for: take the stream as it comes.
+            self.stream_ok = true;
+            return;
+        };
+        self.requested_rate_hz = next;
+        let message = match self.cfg.mavlink.source {
+            Source::ServoOutputRaw => "SERVO_OUTPUT_RAW",
+            Source::ActuatorOutputStatus => "ACTUATOR_OUTPUT_STATUS",
+        };
+        let note = format!(
+            "the autopilot refused {message} at {denied} Hz ({result:?}); asking for {next} Hz. \
+             On ArduPilot the limit is 0.8 × SCHED_LOOP_RATE: raise SCHED_LOOP_RATE, or lower \
+             [mavlink] output_rate_hz"
+        );
+        tracing::warn!("{note}");
+        self.notes.push(note);
+        // Ask again at once, at the lower rate.
+        self.next_stream_request = self.started;
+    }
+
+    /// Something happened on a bus (or to the bridge): announce it.
+    pub fn event(&mut self, event: BridgeEvent, now: Instant) {
+        if let Some(folded) = self.throttle.admit(&event, now) {
+            self.statustext(&event, folded);
+        }
+    }
+
+    fn statustext(&mut self, event: &BridgeEvent, folded: u32) {
+        if !self.cfg.telemetry.statustext {
+            return;
+        }
+        let name = match event {
+            BridgeEvent::Servo { servo, .. } => self
+                .cfg
+                .servos
+                .get(*servo)
+                .map(|s| s.name.as_str())
+                .unwrap_or("servo"),
+            _ => "",
+        };
+        let (severity, text) = describe(event, name);
+        let text = with_folded(text, folded);
+        tracing::info!(severity = ?severity, "{text}");
+        self.outgoing.push_back(Outgoing {
+            message: telemetry::statustext(severity, &text),
+            link: None,
+        });
+    }
+
+    /// Time has come (see [`BridgeCore::poll_timeout`]): failsafe, stream requests, telemetry.
+    pub fn handle_timeout(&mut self, now: Instant, reports: &[ServoReport]) {
+        self.check_failsafe(now);
+        for (event, folded) in self.throttle.due(now) {
+            self.statustext(&event, folded);
+        }
+        if self.system_id.is_none() {
+            return;
+        }
+        if now >= self.next_stream_request {
+            self.next_stream_request = now + STREAM_REQUEST_PERIOD;
+            if !self.stream_ok {
+                self.request_stream();
+            }
+        }
+        if now >= self.next_heartbeat {
+            self.next_heartbeat = now + HEARTBEAT_PERIOD;
+            let status = telemetry::system_status(reports, self.failsafe);
+            self.outgoing.push_back(Outgoing {
+                message: telemetry::heartbeat(status),
+                link: None,
+            });
+        }
+        if now >= self.next_telemetry {
+            let period = Duration::from_secs_f32(1.0 / self.cfg.telemetry.rate_hz.max(0.1));
+            self.next_telemetry = now + period;
+            self.push_telemetry(now, reports);
+        }
+    }
+
+    fn push_telemetry(&mut self, now: Instant, reports: &[ServoReport]) {
+        let since_boot = now.duration_since(self.started);
+        if self.cfg.telemetry.named_value_float {
+            let ms = since_boot.as_millis().min(u128::from(u32::MAX)) as u32;
+            for (servo, report) in self.cfg.servos.iter().zip(reports) {
+                for message in telemetry::named_values(&servo.label, report, ms) {
+                    self.outgoing.push_back(Outgoing {
+                        message,
+                        link: None,
+                    });
+                }
+            }
+        }
+        if self.cfg.telemetry.esc && !reports.is_empty() {
+            self.esc_counter = self.esc_counter.wrapping_add(1);
+            let us = since_boot.as_micros().min(u128::from(u64::MAX)) as u64;
+            for message in telemetry::esc_blocks(reports, us, self.esc_counter) {
+                self.outgoing.push_back(Outgoing {
+                    message,
+                    link: None,
+                });
+            }
+        }
+    }
+
+    fn request_stream(&mut self) {
+        let Some((target_system, target_component)) = self.autopilot else {
+            return;
+        };
+        let id = match self.cfg.mavlink.source {
+            Source::ServoOutputRaw => SERVO_OUTPUT_RAW_ID,
+            Source::ActuatorOutputStatus => ACTUATOR_OUTPUT_STATUS_ID,
+        };
+        let interval_us = (1e6 / self.requested_rate_hz.max(0.1)).round();
+        self.outgoing.push_back(Outgoing {
+            message: MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+                param1: id as f32,
+                param2: interval_us,
+                command: MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+                target_system,
+                target_component,
+                ..Default::default()
+            }),
+            link: Some(AUTOPILOT_LINK),
+        });
+    }
+
+    fn check_failsafe(&mut self, now: Instant) {
+        let Some(last) = self.last_output_at else {
+            return;
+        };
+        let timeout = Duration::from_millis(u64::from(self.cfg.mavlink.failsafe_timeout_ms));
+        if self.failsafe || now.duration_since(last) < timeout {
+            return;
+        }
+        self.failsafe = true;
+        // The autopilot may have restarted and forgotten the rate: ask again until it runs.
+        self.stream_ok = false;
+        self.next_stream_request = now;
+        for i in 0..self.servos.len() {
+            let command = match self.cfg.servos[i].failsafe {
+                FailsafeAction::Hold => Goal::Hold,
+                FailsafeAction::Off => Goal::Off,
+                FailsafeAction::Brake => Goal::Brake,
+                FailsafeAction::Position(p) => Goal::Position(p),
+            };
+            self.command(i, command);
+        }
+        let timeout_ms = self.cfg.mavlink.failsafe_timeout_ms;
+        self.event(BridgeEvent::FailsafeEntered { timeout_ms }, now);
+    }
+
+    /// The next servo command: (servo index in mapping order, command).
+    pub fn poll_command(&mut self) -> Option<(usize, Goal)> {
+        self.commands.pop_front()
+    }
+
+    /// The next MAVLink message to send.
+    pub fn poll_message(&mut self) -> Option<Outgoing> {
+        self.outgoing.pop_front()
+    }
+
+    /// When [`BridgeCore::handle_timeout`] must next be called.
+    pub fn poll_timeout(&self) -> Instant {
+        let mut t = self.next_heartbeat.min(self.next_telemetry);
+        if let Some(last) = self.last_output_at.filter(|_| !self.failsafe) {
+            t = t
+                .min(last + Duration::from_millis(u64::from(self.cfg.mavlink.failsafe_timeout_ms)));
+        }
+        if !self.stream_ok {
+            t = t.min(self.next_stream_request);
+        }
+        if let Some(d) = self.throttle.next_deadline() {
+            t = t.min(d);
+        }
+        t
+    }
+}

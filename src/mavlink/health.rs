@@ -1,0 +1,77 @@
+//! What the MAVLink side knows of each servo: a report per servo (from the bus master's status)
+//! and the events that become STATUSTEXT. Kept apart from the bus types so that the telemetry
+//! code depends on meaning, not on how the bus master stores it.
+
+/// The state of one servo as the ground station should see it, best first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum ServoState {
+    /// Answering, data fresh.
+    Online,
+    /// Not yet initialised (start-up, or no goal yet).
+    Starting,
+    /// Answering, but the latest data is older than it should be.
+    Stale,
+    /// Not answering.
+    Offline,
+    /// Answering but unusable: wrong model, or force switched off by the temperature limit.
+    Fault,
+}
+
+/// One servo's latest state and telemetry.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ServoReport {
+    pub state: Option<ServoState>,
+    pub position_mm: Option<f32>,
+    pub current_a: Option<f32>,
+    pub temperature_c: Option<f32>,
+    pub voltage_v: Option<f32>,
+    pub temperature_alarm: bool,
+    pub temperature_error: bool,
+    pub stalled: bool,
+    /// Replies lost or rejected since start.
+    pub error_count: u32,
+}
+
+impl ServoReport {
+    pub fn state(&self) -> ServoState {
+        self.state.unwrap_or(ServoState::Starting)
+    }
+
+    pub fn online(&self) -> bool {
+        matches!(self.state(), ServoState::Online | ServoState::Stale)
+    }
+}
+
+/// Something that happened to one servo.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ServoEvent {
+    /// Stopped answering.
+    Lost,
+    /// Answering again after being lost.
+    Back,
+    TemperatureAlarm {
+        on: bool,
+        celsius: i16,
+    },
+    /// The servo hit its temperature limit and switched force off; it needs a power cycle.
+    TemperatureError {
+        celsius: i16,
+    },
+    Stalled {
+        on: bool,
+    },
+    WrongModel {
+        found: u16,
+    },
+    FlashWriteError,
+}
+
+/// Something that happened to the bridge as a whole.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub enum BridgeEvent {
+    Servo { servo: usize, event: ServoEvent },
+    FailsafeEntered { timeout_ms: u32 },
+    FailsafeLeft,
+    PortLost { bus: String },
+    PortBack { bus: String },
+}

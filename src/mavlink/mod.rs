@@ -1,0 +1,18 @@
+//! The MAVLink side of the bridge: autopilot outputs in, servo health out.
+//!
+//! - [`outputs`]: SERVO_OUTPUT_RAW / ACTUATOR_OUTPUT_STATUS as channel values.
+//! - [`core`]: the sans-IO bridge logic (autopilot, mapping, commands, failsafe, stream
+//!   requests, telemetry schedule).
+//! - [`telemetry`]: HEARTBEAT, NAMED_VALUE_FLOAT, ESC_INFO/ESC_STATUS and STATUSTEXT builders.
+//! - [`statustext`]: event texts, severities and the flood guard.
+//! - [`health`]: the servo reports and events the telemetry is made from.
+
+pub mod core;
+pub mod health;
+pub mod outputs;
+pub mod statustext;
+pub mod telemetry;
+
+pub use self::core::{BridgeCore, LinkId, Outgoing};
+pub use health::{BridgeEvent, ServoEvent, ServoReport, ServoState};
+pub use mavlink::dialects::common::MavMessage;

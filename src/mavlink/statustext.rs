@@ -1,0 +1,299 @@
+//! Events as STATUSTEXT: one message per event, with the severity the MAVLink conventions give
+//! it, and never a flood: a repeat of the same kind of event for the same servo within the
+//! hold-off is counted and folded into the next message instead of being sent.
+
+use super::health::{BridgeEvent, ServoEvent};
+use mavlink::dialects::common::MavSeverity;
+use std::collections::HashMap;
+use std::time::{Duration, Instant};
+
+/// STATUSTEXT carries at most 50 characters in one chunk.
+pub const MAX_TEXT: usize = 50;
+
+/// Severity and text of an event. `servo_name` names the servo of a servo event.
+pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) {
+    use MavSeverity::*;
+    let (severity, text) = match event {
+        BridgeEvent::Servo { event, .. } => match event {
+            ServoEvent::Lost => (MAV_SEVERITY_CRITICAL, format!("{servo_name}: servo lost")),
+            ServoEvent::Back => (MAV_SEVERITY_NOTICE, format!("{servo_name}: servo back")),
+            ServoEvent::TemperatureAlarm { on: true, celsius } => (
+                MAV_SEVERITY_WARNING,
+                format!("{servo_name}: temperature alarm {celsius}C"),
+            ),
+            ServoEvent::TemperatureAlarm { on: false, celsius } => (
+                MAV_SEVERITY_NOTICE,
+                format!("{servo_name}: temperature ok {celsius}C"),
+            ),
+            ServoEvent::TemperatureError { celsius } => (
+                MAV_SEVERITY_CRITICAL,
+                format!("{servo_name}: overheat {celsius}C, force off"),
+            ),
+            ServoEvent::Stalled { on: true } => {
+                (MAV_SEVERITY_ERROR, format!("{servo_name}: stalled"))
+            }
+            ServoEvent::Stalled { on: false } => {
+                (MAV_SEVERITY_NOTICE, format!("{servo_name}: moving again"))
+            }
+            ServoEvent::WrongModel { found } => (
+                MAV_SEVERITY_ERROR,
+                format!("{servo_name}: model 0x{found:04X} not LJ9DA41"),
+            ),
+            ServoEvent::FlashWriteError => (
+                MAV_SEVERITY_ERROR,
+                format!("{servo_name}: flash write error"),
+            ),
+        },
+        BridgeEvent::FailsafeEntered { timeout_ms } => (
+            MAV_SEVERITY_WARNING,
+            format!("LJ9DA failsafe: no outputs for {timeout_ms} ms"),
+        ),
+        BridgeEvent::FailsafeLeft => (MAV_SEVERITY_NOTICE, "LJ9DA failsafe cleared".to_string()),
+        BridgeEvent::PortLost { bus } => {
+            (MAV_SEVERITY_CRITICAL, format!("LJ9DA bus {bus}: port lost"))
+        }
+        BridgeEvent::PortBack { bus } => {
+            (MAV_SEVERITY_NOTICE, format!("LJ9DA bus {bus}: port back"))
+        }
+    };
+    (severity, truncate(text))
+}
+
+fn truncate(mut text: String) -> String {
+    if text.len() > MAX_TEXT {
+        let mut cut = MAX_TEXT;
+        while !text.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        text.truncate(cut);
+    }
+    text
+}
+
+/// The kind of an event, for the flood guard: an alarm going on and off again is one kind.
+fn kind(event: &BridgeEvent) -> (Option<usize>, u8) {
+    match event {
+        BridgeEvent::Servo { servo, event } => (
+            Some(*servo),
+            match event {
+                ServoEvent::Lost | ServoEvent::Back => 0,
+                ServoEvent::TemperatureAlarm { .. } => 1,
+                ServoEvent::TemperatureError { .. } => 2,
+                ServoEvent::Stalled { .. } => 3,
+                ServoEvent::WrongModel { .. } => 4,
+                ServoEvent::FlashWriteError => 5,
+            },
+        ),
+        BridgeEvent::FailsafeEntered { .. } | BridgeEvent::FailsafeLeft => (None, 10),
+        BridgeEvent::PortLost { .. } | BridgeEvent::PortBack { .. } => (None, 11),
+    }
+}
+
+/// The flood guard. Each kind of event (per servo) is sent at most once per hold-off. Events
+/// that arrive inside the hold-off are counted; when it ends, the latest of them is sent (with
+/// the count) if it differs from the last one sent, so the operator always ends up seeing the
+/// current state: a servo that flaps lost/back/lost is reported lost, not back.
+#[derive(Debug)]
+pub struct Throttle {
+    hold_off: Duration,
+    slots: HashMap<(Option<usize>, u8), Slot>,
+}
+
+#[derive(Debug)]
+struct Slot {
+    sent_at: Instant,
+    last_sent: BridgeEvent,
+    pending: Option<BridgeEvent>,
+    held: u32,
+}
+
+impl Throttle {
+    pub fn new(hold_off: Duration) -> Self {
+        Self {
+            hold_off,
+            slots: HashMap::new(),
+        }
+    }
+
+    /// Whether to send `event` now; `Some(n)`: send it, noting `n` events held back before it.
+    pub fn admit(&mut self, event: &BridgeEvent, now: Instant) -> Option<u32> {
+        let key = kind(event);
+        match self.slots.get_mut(&key) {
+            Some(slot) if now.duration_since(slot.sent_at) < self.hold_off => {
+                slot.held += 1;
+                slot.pending = Some(event.clone());
+                None
+            }
+            Some(slot) => {
+                let folded = slot.held;
+                *slot = Slot {
+                    sent_at: now,
+                    last_sent: event.clone(),
+                    pending: None,
+                    held: 0,
+                };
+                Some(folded)
+            }
+            None => {
+                self.slots.insert(
+                    key,
+                    Slot {
+                        sent_at: now,
+                        last_sent: event.clone(),
+                        pending: None,
+                        held: 0,
+                    },
+                );
+                Some(0)
+            }
+        }
+    }
+
+    /// Held-back events whose hold-off has ended and that change what the operator last saw.
+    pub fn due(&mut self, now: Instant) -> Vec<(BridgeEvent, u32)> {
+        let mut out = Vec::new();
+        for slot in self.slots.values_mut() {
+            if now.duration_since(slot.sent_at) < self.hold_off {
+                continue;
+            }
+            if let Some(pending) = slot.pending.take() {
+                if pending != slot.last_sent {
+                    out.push((pending.clone(), slot.held.saturating_sub(1)));
+                    slot.last_sent = pending;
+                    slot.sent_at = now;
+                }
+                slot.held = 0;
+            }
+        }
+        out
+    }
+
+    /// When [`Throttle::due`] may next have something.
+    pub fn next_deadline(&self) -> Option<Instant> {
+        self.slots
+            .values()
+            .filter(|s| s.pending.is_some())
+            .map(|s| s.sent_at + self.hold_off)
+            .min()
+    }
+}
+
+/// The text with the number of held-back repeats appended, within the 50 characters.
+pub fn with_folded(text: String, folded: u32) -> String {
+    if folded == 0 {
+        text
+    } else {
+        let suffix = format!(" (+{folded})");
+        let mut t = truncate(text);
+        while t.len() + suffix.len() > MAX_TEXT {
+            t.pop();
+        }
+        t + &suffix
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn alarm(on: bool) -> BridgeEvent {
+        BridgeEvent::Servo {
+            servo: 0,
+            event: ServoEvent::TemperatureAlarm { on, celsius: 76 },
+        }
+    }
+
+    #[test]
+    fn severities_follow_the_mavlink_conventions() {
+        let sev = |e: &BridgeEvent| describe(e, "x").0;
+        assert_eq!(sev(&alarm(true)), MavSeverity::MAV_SEVERITY_WARNING);
+        assert_eq!(
+            sev(&BridgeEvent::Servo {
+                servo: 0,
+                event: ServoEvent::TemperatureError { celsius: 85 }
+            }),
+            MavSeverity::MAV_SEVERITY_CRITICAL
+        );
+        assert_eq!(
+            sev(&BridgeEvent::Servo {
+                servo: 0,
+                event: ServoEvent::Lost
+            }),
+            MavSeverity::MAV_SEVERITY_CRITICAL
+        );
+        assert_eq!(
+            sev(&BridgeEvent::Servo {
+                servo: 0,
+                event: ServoEvent::Back
+            }),
+            MavSeverity::MAV_SEVERITY_NOTICE
+        );
+        assert_eq!(
+            sev(&BridgeEvent::FailsafeEntered { timeout_ms: 500 }),
+            MavSeverity::MAV_SEVERITY_WARNING
+        );
+    }
+
+    #[test]
+    fn texts_fit_in_50_characters() {
+        let long_name = "a_very_long_servo_name_that_goes_on_and_on_forever";
+        let (_, t) = describe(
+            &BridgeEvent::Servo {
+                servo: 0,
+                event: ServoEvent::TemperatureError { celsius: 85 },
+            },
+            long_name,
+        );
+        assert!(t.len() <= MAX_TEXT);
+        assert!(with_folded(t, 12).ends_with(" (+12)"));
+    }
+
+    #[test]
+    fn a_flapping_event_is_sent_once_per_hold_off_and_ends_on_the_latest_state() {
+        let t0 = Instant::now();
+        let s = Duration::from_secs;
+        let mut th = Throttle::new(s(5));
+        let lost = BridgeEvent::Servo {
+            servo: 0,
+            event: ServoEvent::Lost,
+        };
+        let back = BridgeEvent::Servo {
+            servo: 0,
+            event: ServoEvent::Back,
+        };
+        assert_eq!(th.admit(&lost, t0), Some(0));
+        assert_eq!(th.admit(&back, t0 + s(1)), None);
+        assert_eq!(th.admit(&lost, t0 + s(2)), None);
+        assert!(th.due(t0 + s(4)).is_empty(), "hold-off not over yet");
+        // The latest held event (lost) equals the last one sent: nothing to correct.
+        assert!(th.due(t0 + s(5)).is_empty());
+        // The hold-off is over: the next event goes out at once ...
+        assert_eq!(th.admit(&back, t0 + s(6)), Some(0));
+        // ... and one inside the new hold-off is sent when it ends, since it changes the state.
+        assert_eq!(th.admit(&lost, t0 + s(7)), None);
+        assert_eq!(th.next_deadline(), Some(t0 + s(11)));
+        assert!(th.due(t0 + s(10)).is_empty());
+        assert_eq!(th.due(t0 + s(11)), vec![(lost.clone(), 0)]);
+        assert_eq!(th.next_deadline(), None);
+    }
+
+    #[test]
+    fn different_servos_and_kinds_do_not_hold_each_other_back() {
+        let t0 = Instant::now();
+        let mut th = Throttle::new(Duration::from_secs(5));
+        assert!(th.admit(&alarm(true), t0).is_some());
+        let other = BridgeEvent::Servo {
+            servo: 1,
+            event: ServoEvent::TemperatureAlarm {
+                on: true,
+                celsius: 80,
+            },
+        };
+        assert!(th.admit(&other, t0).is_some());
+        let err = BridgeEvent::Servo {
+            servo: 0,
+            event: ServoEvent::TemperatureError { celsius: 85 },
+        };
+        assert!(th.admit(&err, t0).is_some());
+    }
+}

@@ -1,0 +1,111 @@
+//! A recording as CSV for spreadsheets: a header line, then one row per record in file order.
+//!
+//! Columns ([`CSV_HEADER`]): `time_s` (since the run's start, µs resolution), `servo` (its
+//! name, empty for the bridge), `kind` (`goal`, `telemetry`, `health`, `event`, `dropped`,
+//! `end`), then the fields of that kind, the others left empty:
+//! - goal: `goal` (`position`, `hold`, `off`, `brake`) and `goal_mm`;
+//! - telemetry: `position_mm`, `current_a`, `temperature_c`, `voltage_v`, `present_time_ms`,
+//!   `flags` (`ok` or the flags' names);
+//! - health: `health`, `stalled` (0 or 1);
+//! - event: `severity` (`warning`, …) and `text`; dropped: `text` (`records dropped: N`);
+//!   end: `text` (`end of run` or `continued in the next file`).
+//!
+//! Fields are separated by commas and quoted (RFC 4180) when they hold a comma, a quote or a
+//! line break. Numbers use a full stop as decimal mark.
+
+use super::format::{Record, RecordBody, goal_name, health_name, severity};
+use super::reader::Recording;
+use crate::bus::Goal;
+use std::io::{self, Write};
+
+/// The first line of every export.
+pub const CSV_HEADER: &str = "time_s,servo,kind,goal,goal_mm,position_mm,current_a,temperature_c,\
+voltage_v,present_time_ms,flags,health,stalled,severity,text";
+
+/// A field, quoted if it needs to be.
+fn field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+/// One record's row (without the line end).
+pub fn csv_row(rec: &Recording, record: &Record) -> String {
+    // goal, goal_mm, position_mm, current_a, temperature_c, voltage_v, present_time_ms,
+    // flags, health, stalled, severity, text
+    let mut cols: [String; 12] = Default::default();
+    match &record.body {
+        RecordBody::Goal { goal, .. } => {
+            cols[0] = goal_name(*goal).to_string();
+            if let Goal::Position(p) = goal {
+                cols[1] = format!("{:.2}", p.mm());
+            }
+        }
+        RecordBody::Telemetry {
+            telemetry: t,
+            flags,
+            ..
+        } => {
+            cols[2] = format!("{:.2}", t.present_position.mm());
+            cols[3] = format!("{:.2}", t.present_load.amps());
+            cols[4] = t.present_temperature.0.to_string();
+            cols[5] = format!("{:.2}", t.present_voltage.volts());
+            cols[6] = t.present_time.millis().to_string();
+            cols[7] = flags.meaningful().to_string();
+        }
+        RecordBody::Health {
+            health, stalled, ..
+        } => {
+            cols[8] = health_name(*health).to_string();
+            cols[9] = u8::from(*stalled).to_string();
+        }
+        RecordBody::Event {
+            severity: sev,
+            text,
+            ..
+        } => {
+            cols[10] = severity::name(*sev);
+            cols[11] = text.clone();
+        }
+        RecordBody::Dropped { count } => cols[11] = format!("records dropped: {count}"),
+        RecordBody::End { continued } => {
+            cols[11] = if *continued {
+                "continued in the next file"
+            } else {
+                "end of run"
+            }
+            .to_string();
+        }
+    }
+    let servo = record
+        .body
+        .servo()
+        .map(|s| rec.servo_name(s))
+        .unwrap_or_default();
+    let mut row = format!(
+        "{}.{:06},{},{}",
+        record.t_us / 1_000_000,
+        record.t_us % 1_000_000,
+        field(&servo),
+        record.body.kind_name()
+    );
+    for c in &cols {
+        row.push(',');
+        row.push_str(&field(c));
+    }
+    row
+}
+
+/// Write the recording as CSV; returns the number of rows after the header.
+pub fn write_csv(rec: &Recording, out: &mut impl Write) -> io::Result<u64> {
+    writeln!(out, "{CSV_HEADER}")?;
+    let mut rows = 0;
+    for record in &rec.records {
+        writeln!(out, "{}", csv_row(rec, record))?;
+        rows += 1;
+    }
+    out.flush()?;
+    Ok(rows)
+}

@@ -1,0 +1,129 @@
+//! Feeding the recorder from the buses: bus statuses in, telemetry and health records out.
+//!
+//! A [`StatusFeed`] is handed every [`BusStatus`] a bus driver publishes (from
+//! [`BusHandle::watch_status`](crate::bus::BusHandle::watch_status)) and records what is new
+//! in it: each servo's telemetry sample (once, stamped with the time its reply arrived), and
+//! its health or stall state when either changes. It finds a servo's index in the record by
+//! its bus name and ID. Bus events can be recorded through it too.
+//!
+//! A status watch keeps only the newest status, so a sample replaced before the feed looked
+//! is not recorded; [`StatusFeed::missed_samples`] counts those (from the servo's telemetry
+//! counter), so the loss is known, not silent.
+//!
+//! ```no_run
+//! # async fn feed(bus: lj9da_bridge::bus::BusHandle, record: lj9da_bridge::record::RecordHandle,
+//! #               servos: Vec<lj9da_bridge::record::RecordServo>) {
+//! use lj9da_bridge::record::StatusFeed;
+//! let mut feed = StatusFeed::new(record, &servos);
+//! let mut status = bus.watch_status();
+//! while status.changed().await.is_ok() {
+//!     let snapshot = status.borrow_and_update().clone();
+//!     feed.observe(&snapshot);
+//! }
+//! # }
+//! ```
+
+use super::format::{RecordServo, severity};
+use super::writer::RecordHandle;
+use crate::bus::{BusEvent, BusStatus, Health};
+use std::time::Instant;
+
+#[derive(Debug, Clone, Default)]
+struct Seen {
+    telemetry_at: Option<Instant>,
+    telemetry_count: Option<u64>,
+    state: Option<(Health, bool)>,
+}
+
+/// Turns bus statuses and events into records.
+#[derive(Debug, Clone)]
+pub struct StatusFeed {
+    handle: RecordHandle,
+    /// (bus, ID) of each servo index.
+    servos: Vec<(String, u8)>,
+    seen: Vec<Seen>,
+    missed: u64,
+}
+
+impl StatusFeed {
+    /// A feed for the servos of the record's servo table.
+    pub fn new(handle: RecordHandle, servos: &[RecordServo]) -> Self {
+        StatusFeed {
+            handle,
+            servos: servos.iter().map(|s| (s.bus.clone(), s.id)).collect(),
+            seen: vec![Seen::default(); servos.len()],
+            missed: 0,
+        }
+    }
+
+    /// The servo index of servo `id` on bus `bus`.
+    pub fn index_of(&self, bus: &str, id: u8) -> Option<usize> {
+        self.servos.iter().position(|(b, i)| b == bus && *i == id)
+    }
+
+    /// Record what is new in a status of the bus it names: telemetry samples not yet
+    /// recorded, and health or stall changes. Servos not in the table are ignored.
+    pub fn observe(&mut self, status: &BusStatus) {
+        for servo in &status.servos {
+            let Some(index) = self.index_of(&status.name, servo.id.get()) else {
+                continue;
+            };
+            let Some(seen) = self.seen.get_mut(index) else {
+                continue;
+            };
+            if let (Some(telemetry), Some(at)) = (servo.telemetry, servo.telemetry_at)
+                && seen.telemetry_at != Some(at)
+            {
+                if let Some(before) = seen.telemetry_count {
+                    self.missed += servo
+                        .telemetry_count
+                        .saturating_sub(before)
+                        .saturating_sub(1);
+                }
+                self.handle.telemetry(at, index, &telemetry, servo.flags);
+                seen.telemetry_at = Some(at);
+                seen.telemetry_count = Some(servo.telemetry_count);
+            }
+            let state = (servo.health, servo.stalled);
+            if seen.state != Some(state) {
+                self.handle.health(status.at, index, state.0, state.1);
+                seen.state = Some(state);
+            }
+        }
+    }
+
+    /// Record a bus event of the bus called `bus`, with the severity a ground station would
+    /// give it, now.
+    pub fn bus_event(&self, bus: &str, event: &BusEvent) {
+        let servo = event.servo().and_then(|id| self.index_of(bus, id.get()));
+        let severity = match event {
+            BusEvent::ServoOnline { .. } => severity::INFO,
+            BusEvent::ServoBack { .. }
+            | BusEvent::PortBack
+            | BusEvent::TemperatureAlarm { on: false, .. }
+            | BusEvent::Stalled { on: false, .. } => severity::NOTICE,
+            BusEvent::ServoRestarted { .. }
+            | BusEvent::ForceRefused { .. }
+            | BusEvent::TemperatureAlarm { on: true, .. } => severity::WARNING,
+            BusEvent::WrongModel { .. }
+            | BusEvent::Stalled { on: true, .. }
+            | BusEvent::FlashWriteError { .. } => severity::ERROR,
+            BusEvent::ServoLost { .. }
+            | BusEvent::TemperatureError { .. }
+            | BusEvent::PortLost { .. } => severity::CRITICAL,
+        };
+        self.handle
+            .event(servo, severity, format!("bus {bus}: {event}"));
+    }
+
+    /// Telemetry samples the servos answered that this feed never saw (a newer status had
+    /// replaced them).
+    pub fn missed_samples(&self) -> u64 {
+        self.missed
+    }
+
+    /// The recorder this feed writes to.
+    pub fn handle(&self) -> &RecordHandle {
+        &self.handle
+    }
+}

@@ -1,0 +1,403 @@
+//! Per-servo figures of a recording: what `lj9da-bridge record summary` prints.
+//!
+//! Definitions (every time in seconds since the run's start):
+//! - **duration**: from the servo's first telemetry sample to its last;
+//! - **samples**: telemetry records; temperature, current and voltage minimum / mean / maximum
+//!   over them (plain means over samples, not weighted by time);
+//! - **time stalled** / **time offline**: the total time between a health record that says
+//!   stalled (offline) and the next that does not, or the end of the recording;
+//! - **max error**: the largest |goal − present position| over the samples, each sample
+//!   paired with the goal in force at its time (the latest position goal; `hold` keeps it;
+//!   `off` and `brake` end it, and samples without a goal in force are not paired). It
+//!   includes the travel right after each new goal; **settled error** is the same over the
+//!   samples taken at least [`SETTLE_S`] after the goal last changed;
+//! - **alarms**: times a status flag of the servo's replies went on — temperature alarm,
+//!   temperature error, flash write error — each counted separately.
+
+use super::format::{Record, RecordBody, RecordServo};
+use super::reader::Recording;
+use crate::bus::{Goal, Health};
+use crate::protocol::{MmCenti, ReplyFlags};
+use std::fmt;
+
+/// How long after a goal change a sample counts towards the settled error, in seconds.
+pub const SETTLE_S: f64 = 1.0;
+
+/// Minimum, mean and maximum of a quantity.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Range {
+    pub min: f64,
+    pub mean: f64,
+    pub max: f64,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct Accumulator {
+    min: f64,
+    max: f64,
+    sum: f64,
+    n: u64,
+}
+
+impl Accumulator {
+    fn add(&mut self, v: f64) {
+        if self.n == 0 {
+            self.min = v;
+            self.max = v;
+        } else {
+            self.min = self.min.min(v);
+            self.max = self.max.max(v);
+        }
+        self.sum += v;
+        self.n += 1;
+    }
+
+    fn range(&self) -> Option<Range> {
+        (self.n > 0).then(|| Range {
+            min: self.min,
+            mean: self.sum / self.n as f64,
+            max: self.max,
+        })
+    }
+}
+
+/// The figures of one servo.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServoSummary {
+    /// The servo's index in the record (its position in the mapping file).
+    pub index: usize,
+    pub servo: RecordServo,
+    pub samples: u64,
+    pub first_sample_s: Option<f64>,
+    pub last_sample_s: Option<f64>,
+    pub temperature_c: Option<Range>,
+    pub current_a: Option<Range>,
+    pub voltage_v: Option<Range>,
+    /// Goal records.
+    pub goals: u64,
+    pub max_error_mm: Option<f64>,
+    /// When the largest error was seen.
+    pub max_error_at_s: Option<f64>,
+    pub max_settled_error_mm: Option<f64>,
+    pub stalled_s: f64,
+    pub offline_s: f64,
+    pub temperature_alarms: u32,
+    pub temperature_errors: u32,
+    pub flash_errors: u32,
+    /// Event records about this servo.
+    pub events: u32,
+}
+
+impl ServoSummary {
+    /// Seconds from the first sample to the last (0 without samples).
+    pub fn duration_s(&self) -> f64 {
+        match (self.first_sample_s, self.last_sample_s) {
+            (Some(a), Some(b)) => b - a,
+            _ => 0.0,
+        }
+    }
+
+    /// The highest current drawn, in A.
+    pub fn peak_current_a(&self) -> Option<f64> {
+        self.current_a.map(|r| r.max)
+    }
+
+    /// All flag alarms together.
+    pub fn alarms(&self) -> u32 {
+        self.temperature_alarms + self.temperature_errors + self.flash_errors
+    }
+}
+
+/// The figures of a recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Summary {
+    pub run_start_unix_ns: i64,
+    pub part: u16,
+    /// From the first record to the last, in seconds.
+    pub duration_s: f64,
+    pub records: usize,
+    /// Records the writer could not take (its `dropped` records).
+    pub dropped: u64,
+    /// Whether the file ends with the writer's end record.
+    pub closed: bool,
+    pub servos: Vec<ServoSummary>,
+}
+
+/// The records about servo `servo`, in time order (stable for equal times).
+pub fn servo_records(rec: &Recording, servo: usize) -> Vec<&Record> {
+    let mut records: Vec<&Record> = rec
+        .records
+        .iter()
+        .filter(|r| r.body.servo().map(usize::from) == Some(servo))
+        .collect();
+    records.sort_by_key(|r| r.t_us);
+    records
+}
+
+/// The time spans, in seconds, during which servo `servo`'s health records satisfy `state`
+/// (the last span ends at the end of the recording).
+pub fn state_spans(
+    rec: &Recording,
+    servo: usize,
+    state: impl Fn(Health, bool) -> bool,
+) -> Vec<(f64, f64)> {
+    let end = rec.end_t_us() as f64 / 1e6;
+    let mut spans = Vec::new();
+    let mut since: Option<f64> = None;
+    for r in servo_records(rec, servo) {
+        if let RecordBody::Health {
+            health, stalled, ..
+        } = r.body
+        {
+            let now = state(health, stalled);
+            match (since, now) {
+                (None, true) => since = Some(r.t_s()),
+                (Some(s), false) => {
+                    spans.push((s, r.t_s()));
+                    since = None;
+                }
+                _ => {}
+            }
+        }
+    }
+    if let Some(s) = since {
+        spans.push((s, end.max(s)));
+    }
+    spans
+}
+
+/// The times, in seconds, at which a flag of servo `servo`'s replies went on, with the flag's
+/// name.
+pub fn flag_alarms(rec: &Recording, servo: usize) -> Vec<(f64, &'static str)> {
+    let mut alarms = Vec::new();
+    let mut previous = ReplyFlags(0);
+    for r in servo_records(rec, servo) {
+        if let RecordBody::Telemetry { flags, .. } = r.body {
+            let rose = flags.0 & !previous.0;
+            for (bit, name) in [
+                (ReplyFlags::TEMPERATURE_ALARM, "temperature alarm"),
+                (ReplyFlags::TEMPERATURE_ERROR, "temperature error"),
+                (ReplyFlags::FLASH_WRITE_ERROR, "flash write error"),
+            ] {
+                if rose & bit != 0 {
+                    alarms.push((r.t_s(), name));
+                }
+            }
+            previous = flags;
+        }
+    }
+    alarms
+}
+
+fn total(spans: &[(f64, f64)]) -> f64 {
+    // A fold from +0.0: an empty float sum is −0.0, which prints as "-0.0".
+    spans.iter().fold(0.0, |sum, (a, b)| sum + (b - a))
+}
+
+/// The figures of every servo of the recording's servo table.
+pub fn summary(rec: &Recording) -> Summary {
+    let servos = rec
+        .header
+        .servos
+        .iter()
+        .enumerate()
+        .map(|(index, servo)| servo_summary(rec, index, servo))
+        .collect();
+    Summary {
+        run_start_unix_ns: rec.header.run_start_unix_ns,
+        part: rec.header.part,
+        duration_s: rec.end_t_us().saturating_sub(rec.start_t_us()) as f64 / 1e6,
+        records: rec.records.len(),
+        dropped: rec.dropped(),
+        closed: rec.closed,
+        servos,
+    }
+}
+
+fn servo_summary(rec: &Recording, index: usize, servo: &RecordServo) -> ServoSummary {
+    let mut s = ServoSummary {
+        index,
+        servo: servo.clone(),
+        samples: 0,
+        first_sample_s: None,
+        last_sample_s: None,
+        temperature_c: None,
+        current_a: None,
+        voltage_v: None,
+        goals: 0,
+        max_error_mm: None,
+        max_error_at_s: None,
+        max_settled_error_mm: None,
+        stalled_s: total(&state_spans(rec, index, |_, stalled| stalled)),
+        offline_s: total(&state_spans(rec, index, |h, _| h == Health::Offline)),
+        temperature_alarms: 0,
+        temperature_errors: 0,
+        flash_errors: 0,
+        events: 0,
+    };
+    for (_, name) in flag_alarms(rec, index) {
+        match name {
+            "temperature alarm" => s.temperature_alarms += 1,
+            "temperature error" => s.temperature_errors += 1,
+            _ => s.flash_errors += 1,
+        }
+    }
+    let (mut temperature, mut current, mut voltage) = Default::default();
+    let mut goal: Option<MmCenti> = None;
+    let mut goal_since = 0.0;
+    for r in servo_records(rec, index) {
+        let t = r.t_s();
+        match &r.body {
+            RecordBody::Goal { goal: g, .. } => {
+                s.goals += 1;
+                match g {
+                    Goal::Position(p) => {
+                        if goal != Some(*p) {
+                            goal_since = t;
+                        }
+                        goal = Some(*p);
+                    }
+                    Goal::Hold => {}
+                    Goal::Off | Goal::Brake => goal = None,
+                }
+            }
+            RecordBody::Telemetry { telemetry: tm, .. } => {
+                s.samples += 1;
+                s.first_sample_s.get_or_insert(t);
+                s.last_sample_s = Some(t);
+                Accumulator::add(&mut temperature, f64::from(tm.present_temperature.0));
+                Accumulator::add(&mut current, tm.present_load.amps());
+                Accumulator::add(&mut voltage, tm.present_voltage.volts());
+                if let Some(g) = goal {
+                    let error = (g.mm() - tm.present_position.mm()).abs();
+                    if s.max_error_mm.is_none_or(|m| error > m) {
+                        s.max_error_mm = Some(error);
+                        s.max_error_at_s = Some(t);
+                    }
+                    if t - goal_since >= SETTLE_S {
+                        let m = s.max_settled_error_mm.get_or_insert(error);
+                        *m = m.max(error);
+                    }
+                }
+            }
+            RecordBody::Event { .. } => s.events += 1,
+            _ => {}
+        }
+    }
+    s.temperature_c = Accumulator::range(&temperature);
+    s.current_a = Accumulator::range(&current);
+    s.voltage_v = Accumulator::range(&voltage);
+    s
+}
+
+fn opt(v: Option<f64>, decimals: usize) -> String {
+    v.map_or_else(|| "-".to_string(), |v| format!("{v:.decimals$}"))
+}
+
+impl fmt::Display for Summary {
+    /// An aligned table, one row per servo, then the alarms of each servo that had any.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "run started {}{}: {:.1} s, {} records, {}",
+            super::clock::Utc::from_unix_ns(self.run_start_unix_ns),
+            if self.part > 0 {
+                format!(" (part {})", self.part)
+            } else {
+                String::new()
+            },
+            self.duration_s,
+            self.records,
+            if self.closed {
+                "closed cleanly"
+            } else {
+                "not closed (see notes)"
+            }
+        )?;
+        if self.dropped > 0 {
+            writeln!(
+                f,
+                "{} records were dropped by the writer (queue full or disk error)",
+                self.dropped
+            )?;
+        }
+        let head = [
+            "servo",
+            "bus",
+            "id",
+            "ch",
+            "duration s",
+            "samples",
+            "min °C",
+            "mean °C",
+            "max °C",
+            "peak A",
+            "mean V",
+            "stalled s",
+            "offline s",
+            "max err mm",
+            "settled err mm",
+            "alarms",
+        ];
+        let mut rows: Vec<Vec<String>> = vec![head.iter().map(|h| h.to_string()).collect()];
+        for s in &self.servos {
+            rows.push(vec![
+                s.servo.name.clone(),
+                s.servo.bus.clone(),
+                s.servo.id.to_string(),
+                s.servo.channel.to_string(),
+                format!("{:.1}", s.duration_s()),
+                s.samples.to_string(),
+                opt(s.temperature_c.map(|r| r.min), 0),
+                opt(s.temperature_c.map(|r| r.mean), 1),
+                opt(s.temperature_c.map(|r| r.max), 0),
+                opt(s.peak_current_a(), 2),
+                opt(s.voltage_v.map(|r| r.mean), 2),
+                format!("{:.1}", s.stalled_s),
+                format!("{:.1}", s.offline_s),
+                opt(s.max_error_mm, 2),
+                opt(s.max_settled_error_mm, 2),
+                s.alarms().to_string(),
+            ]);
+        }
+        let widths: Vec<usize> = (0..head.len())
+            .map(|c| {
+                rows.iter()
+                    .map(|r| r.get(c).map_or(0, |s| s.chars().count()))
+                    .max()
+                    .unwrap_or(0)
+            })
+            .collect();
+        for row in &rows {
+            let mut line = String::new();
+            for (c, (cell, width)) in row.iter().zip(&widths).enumerate() {
+                if c > 0 {
+                    line.push_str("  ");
+                }
+                let pad = width.saturating_sub(cell.chars().count());
+                if c < 2 {
+                    line.push_str(cell);
+                    line.push_str(&" ".repeat(pad));
+                } else {
+                    line.push_str(&" ".repeat(pad));
+                    line.push_str(cell);
+                }
+            }
+            writeln!(f, "{}", line.trim_end())?;
+        }
+        for s in self.servos.iter().filter(|s| s.alarms() > 0) {
+            let mut parts = Vec::new();
+            for (n, what) in [
+                (s.temperature_alarms, "temperature alarm"),
+                (s.temperature_errors, "temperature error"),
+                (s.flash_errors, "flash write error"),
+            ] {
+                if n > 0 {
+                    parts.push(format!("{n} × {what}"));
+                }
+            }
+            writeln!(f, "{}: {}", s.servo.name, parts.join(", "))?;
+        }
+        Ok(())
+    }
+}

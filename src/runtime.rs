@@ -1,0 +1,397 @@
+//! `lj9da-bridge run`: the tokio shell around the sans-IO parts. It opens the MAVLink links
+//! and the buses named in the mapping file, carries messages, goals, events and statuses
+//! between [`BridgeCore`] and the bus drivers, and stops cleanly on request.
+//!
+//! All decisions live in [`BridgeCore`] and [`crate::bus::BusMaster`]; this file only moves
+//! data and waits.
+
+use crate::bus::{
+    BusConfig, BusEvent, BusHandle, BusStatus, Health, ServoSetup, ShutdownForce, spawn_bus,
+};
+use crate::config::{Config, ExitAction};
+use crate::mavlink::{BridgeCore, BridgeEvent, LinkId, ServoEvent, ServoReport, ServoState};
+use crate::protocol::ServoId;
+use crate::record::{RecordHandle, RecordLimits, RecordServo, Recorder, StatusFeed};
+use ::mavlink::dialects::common::MavMessage;
+use ::mavlink::{AsyncMavConnection, MavHeader};
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+use thiserror::Error;
+use tokio::sync::{mpsc, watch};
+
+/// How often the view is refreshed at most.
+const VIEW_PERIOD: std::time::Duration = std::time::Duration::from_millis(50);
+
+type Link = Arc<::mavlink::AsyncConnection<MavMessage>>;
+
+/// Why the bridge could not start.
+#[derive(Debug, Error)]
+pub enum RunError {
+    #[error("cannot open the MAVLink connection {address:?}: {source}")]
+    Mavlink {
+        address: String,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// One servo as the live table shows it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServoView {
+    pub name: String,
+    pub bus: String,
+    pub id: ServoId,
+    pub channel: u8,
+    pub report: ServoReport,
+    pub goal_mm: Option<f64>,
+    pub health: Health,
+}
+
+/// Everything the live table and the tests may want to see, refreshed after every step.
+#[derive(Debug, Clone, Default)]
+pub struct BridgeView {
+    pub servos: Vec<ServoView>,
+    pub autopilot: Option<(u8, u8)>,
+    pub failsafe: bool,
+    pub output_rate_hz: f32,
+}
+
+/// The running bridge's buses, in the order of the mapping file's `[[bus]]` tables, and where
+/// each servo lives.
+struct Buses {
+    handles: Vec<BusHandle>,
+    /// For each servo (mapping order): its bus index and ID.
+    servo_at: Vec<(usize, ServoId)>,
+}
+
+impl Buses {
+    fn spawn(cfg: &Config, ports: &HashMap<String, PathBuf>) -> Self {
+        let mut handles = Vec::new();
+        for bus in &cfg.buses {
+            let setups = cfg
+                .servos
+                .iter()
+                .filter(|s| s.bus == bus.name)
+                .map(|s| ServoSetup {
+                    id: s.id,
+                    name: s.name.clone(),
+                    goal_time: s.goal_time(),
+                    max_force: s.max_force_percent,
+                })
+                .collect();
+            let mut bus_cfg = BusConfig::new(bus.name.clone(), bus.baud, setups);
+            if let Some(ms) = bus.turnaround_ms {
+                bus_cfg.turnaround = std::time::Duration::from_secs_f32(ms / 1000.0);
+            }
+            let port = ports
+                .get(&bus.name)
+                .cloned()
+                .unwrap_or_else(|| bus.port.clone());
+            tracing::info!(bus = %bus.name, port = %port.display(), baud = %bus.baud, "opening bus");
+            handles.push(spawn_bus(bus_cfg, port));
+        }
+        let servo_at = cfg
+            .servos
+            .iter()
+            .map(|s| {
+                let bus = cfg.buses.iter().position(|b| b.name == s.bus).unwrap_or(0);
+                (bus, s.id)
+            })
+            .collect();
+        Buses { handles, servo_at }
+    }
+
+    fn reports(&self, cfg: &Config) -> (Vec<ServoReport>, Vec<ServoView>) {
+        let statuses: Vec<BusStatus> = self.handles.iter().map(BusHandle::status).collect();
+        let mut reports = Vec::with_capacity(self.servo_at.len());
+        let mut views = Vec::with_capacity(self.servo_at.len());
+        for (i, (bus, id)) in self.servo_at.iter().enumerate() {
+            let status = statuses
+                .get(*bus)
+                .and_then(|b| b.servos.iter().find(|s| s.id == *id));
+            let (report, goal_mm, health) = match status {
+                Some(s) => (report_of(s), s.goal.map(|g| g.mm()), s.health),
+                None => (ServoReport::default(), None, Health::Starting),
+            };
+            reports.push(report);
+            let sc = &cfg.servos[i];
+            views.push(ServoView {
+                name: sc.name.clone(),
+                bus: sc.bus.clone(),
+                id: *id,
+                channel: sc.channel,
+                report,
+                goal_mm,
+                health,
+            });
+        }
+        (reports, views)
+    }
+}
+
+/// The MAVLink view of one servo's bus status.
+pub fn report_of(s: &crate::bus::ServoStatus) -> ServoReport {
+    let state = match s.health {
+        Health::Starting => ServoState::Starting,
+        Health::Online => ServoState::Online,
+        Health::Stale => ServoState::Stale,
+        Health::Offline => ServoState::Offline,
+        Health::WrongModel | Health::TemperatureError => ServoState::Fault,
+    };
+    let fresh = matches!(s.health, Health::Online | Health::Stale);
+    let t = s.telemetry.filter(|_| fresh);
+    ServoReport {
+        state: Some(state),
+        position_mm: t.map(|t| t.present_position.mm() as f32),
+        current_a: t.map(|t| t.present_load.amps() as f32),
+        temperature_c: t.map(|t| f32::from(t.present_temperature.0)),
+        voltage_v: t.map(|t| t.present_voltage.volts() as f32),
+        temperature_alarm: s.flags.temperature_alarm(),
+        temperature_error: s.flags.temperature_error() || s.health == Health::TemperatureError,
+        stalled: s.stalled,
+        error_count: s.timeouts.min(u64::from(u32::MAX)) as u32,
+    }
+}
+
+/// A bus event as the MAVLink side announces it (`None`: logged only).
+fn bridge_event(cfg: &Config, buses: &Buses, bus: usize, event: &BusEvent) -> Option<BridgeEvent> {
+    let bus_name = cfg
+        .buses
+        .get(bus)
+        .map(|b| b.name.clone())
+        .unwrap_or_default();
+    let servo = event.servo().and_then(|id| {
+        buses
+            .servo_at
+            .iter()
+            .position(|(b, i)| *b == bus && *i == id)
+    });
+    let celsius = || {
+        let id = event.servo()?;
+        let status = buses.handles.get(bus)?.status();
+        let t = status.servos.iter().find(|s| s.id == id)?.telemetry?;
+        Some(t.present_temperature.0)
+    };
+    let servo_event = match event {
+        BusEvent::ServoLost { .. } => ServoEvent::Lost,
+        BusEvent::ServoBack { .. } => ServoEvent::Back,
+        BusEvent::TemperatureAlarm { on, .. } => ServoEvent::TemperatureAlarm {
+            on: *on,
+            celsius: celsius().unwrap_or(0),
+        },
+        BusEvent::TemperatureError { .. } => ServoEvent::TemperatureError {
+            celsius: celsius().unwrap_or(0),
+        },
+        BusEvent::Stalled { on, .. } => ServoEvent::Stalled { on: *on },
+        BusEvent::WrongModel { found, .. } => ServoEvent::WrongModel { found: *found },
+        BusEvent::FlashWriteError { .. } => ServoEvent::FlashWriteError,
+        BusEvent::PortLost { .. } => return Some(BridgeEvent::PortLost { bus: bus_name }),
+        BusEvent::PortBack => return Some(BridgeEvent::PortBack { bus: bus_name }),
+        BusEvent::ServoOnline { .. }
+        | BusEvent::ServoRestarted { .. }
+        | BusEvent::ForceRefused { .. } => {
+            return None;
+        }
+    };
+    Some(BridgeEvent::Servo {
+        servo: servo?,
+        event: servo_event,
+    })
+}
+
+async fn connect(address: &str) -> Result<Link, RunError> {
+    let mut conn = ::mavlink::connect_async::<MavMessage>(address)
+        .await
+        .map_err(|source| RunError::Mavlink {
+            address: address.to_string(),
+            source,
+        })?;
+    conn.set_allow_recv_any_version(true);
+    Ok(Arc::new(conn))
+}
+
+/// How a run differs from the mapping file alone.
+#[derive(Debug, Default)]
+pub struct RunOptions {
+    /// Replaces the port of the named buses (the simulation puts its pseudo-terminals there).
+    pub ports: HashMap<String, PathBuf>,
+    /// Refreshed after every step (at most every 50 ms) for the live table and tests.
+    pub view: Option<watch::Sender<BridgeView>>,
+    /// Where to keep the flight record; `None`: no record.
+    pub record_dir: Option<PathBuf>,
+    /// Check each bus port's USB latency timer first (real adapters only).
+    pub check_latency: bool,
+}
+
+/// Start the flight record, or say why there is none and carry on without it.
+fn start_record(cfg: &Config, dir: &std::path::Path) -> Option<RecordHandle> {
+    let servos = RecordServo::from_config(cfg);
+    let limits = RecordLimits::with_total(cfg.record.max_total_bytes());
+    match Recorder::start(dir, &servos, limits) {
+        Ok(handle) => {
+            tracing::info!(file = ?handle.path(), "flight record started");
+            Some(handle)
+        }
+        Err(e) => {
+            tracing::warn!("flight record disabled: cannot write in {}: {e}", dir.display());
+            None
+        }
+    }
+}
+
+/// Run the bridge until `stop` turns true.
+pub async fn run(cfg: Config, opts: RunOptions, mut stop: watch::Receiver<bool>) -> Result<(), RunError> {
+    let RunOptions {
+        ports,
+        view,
+        record_dir,
+        check_latency,
+    } = opts;
+    if check_latency {
+        crate::deploy::check_buses(&cfg);
+    }
+    let mut links = vec![connect(&cfg.mavlink.connection).await?];
+    if let Some(gcs) = &cfg.mavlink.gcs {
+        links.push(connect(gcs).await?);
+    }
+    tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links open");
+    let buses = Buses::spawn(&cfg, &ports);
+    let mut core = BridgeCore::new(cfg.clone(), Instant::now());
+    let record = record_dir.filter(|_| cfg.record.enabled).and_then(|dir| start_record(&cfg, &dir));
+
+    let (msg_tx, mut msg_rx) = mpsc::channel::<(LinkId, MavHeader, MavMessage)>(1024);
+    let mut readers = Vec::new();
+    for (link_id, link) in links.iter().enumerate() {
+        let link = link.clone();
+        let tx = msg_tx.clone();
+        readers.push(tokio::spawn(async move {
+            loop {
+                match link.recv().await {
+                    Ok((header, msg)) => {
+                        if tx.send((link_id, header, msg)).await.is_err() {
+                            return;
+                        }
+                    }
+                    Err(e) => {
+                        tracing::debug!(link = link_id, "MAVLink receive: {e}");
+                        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+                    }
+                }
+            }
+        }));
+    }
+    let (event_tx, mut event_rx) = mpsc::unbounded_channel::<(usize, BusEvent)>();
+    for (i, bus) in buses.handles.iter().enumerate() {
+        let mut events = bus.events();
+        let tx = event_tx.clone();
+        let feed = record.clone().map(|r| StatusFeed::new(r, &RecordServo::from_config(&cfg)));
+        let bus_name = bus.name().to_string();
+        if let Some(mut feed) = feed.clone() {
+            let mut status = bus.watch_status();
+            readers.push(tokio::spawn(async move {
+                while status.changed().await.is_ok() {
+                    let s = status.borrow_and_update().clone();
+                    feed.observe(&s);
+                }
+            }));
+        }
+        readers.push(tokio::spawn(async move {
+            loop {
+                match events.recv().await {
+                    Ok(e) => {
+                        if let Some(feed) = &feed {
+                            feed.bus_event(&bus_name, &e);
+                        }
+                        if tx.send((i, e)).is_err() {
+                            return;
+                        }
+                    }
+                    Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                        tracing::warn!(bus = i, "{n} bus events dropped");
+                    }
+                    Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+                }
+            }
+        }));
+    }
+
+    let mut view_at = Instant::now();
+    loop {
+        let deadline = tokio::time::Instant::from_std(core.poll_timeout());
+        tokio::select! {
+            biased;
+            changed = stop.changed() => {
+                if changed.is_err() || *stop.borrow() { break; }
+            }
+            Some((link, header, msg)) = msg_rx.recv() => {
+                core.handle_message(link, &header, &msg, Instant::now());
+            }
+            Some((bus, event)) = event_rx.recv() => {
+                tracing::info!(bus = %buses.handles[bus].name(), "{event}");
+                if let Some(e) = bridge_event(&cfg, &buses, bus, &event) {
+                    core.event(e, Instant::now());
+                }
+            }
+            _ = tokio::time::sleep_until(deadline) => {
+                let (reports, _) = buses.reports(&cfg);
+                core.handle_timeout(Instant::now(), &reports);
+            }
+        }
+        while let Some((servo, goal)) = core.poll_command() {
+            if let Some((bus, id)) = buses.servo_at.get(servo) {
+                buses.handles[*bus].set_goal(*id, goal);
+            }
+            if let Some(r) = &record {
+                r.goal(servo, goal);
+            }
+        }
+        if let Some(header) = core.header() {
+            while let Some(out) = core.poll_message() {
+                if let (Some(r), MavMessage::STATUSTEXT(t)) = (&record, &out.message) {
+                    r.event(None, t.severity as u8, t.text.to_str().unwrap_or("").to_string());
+                }
+                for (i, link) in links.iter().enumerate() {
+                    if out.link.is_none_or(|l| l == i)
+                        && let Err(e) = link.send(&header, &out.message).await
+                    {
+                        tracing::debug!(link = i, "MAVLink send: {e}");
+                    }
+                }
+            }
+        }
+        for note in core.take_notes() {
+            tracing::warn!("{note}");
+        }
+        if let Some(view) = view.as_ref().filter(|_| view_at.elapsed() >= VIEW_PERIOD) {
+            view_at = Instant::now();
+            let (_, servos) = buses.reports(&cfg);
+            view.send_replace(BridgeView {
+                servos,
+                autopilot: core.autopilot(),
+                failsafe: core.in_failsafe(),
+                output_rate_hz: core.requested_rate_hz(),
+            });
+        }
+    }
+
+    let leave = match cfg.bridge.on_exit {
+        ExitAction::Hold => ShutdownForce::AsIs,
+        ExitAction::Off => ShutdownForce::Off,
+        ExitAction::Brake => ShutdownForce::AsIs, // FIXME-BRAKE
+    };
+    tracing::info!(?leave, "stopping: closing the buses");
+    for bus in &buses.handles {
+        bus.shutdown(leave).await;
+    }
+    for r in readers {
+        r.abort();
+    }
+    if let Some(r) = record {
+        let path = r.path();
+        let stats = r.finish();
+        tracing::info!(file = ?path, ?stats, "flight record closed");
+    }
+    Ok(())
+}

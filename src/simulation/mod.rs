@@ -1,0 +1,181 @@
+//! `lj9da-bridge sitl`: the whole chain in software. Simulated LJ9DA41 servos on
+//! pseudo-terminals (the `lj9da-sim` crate), a simulated autopilot — or a real autopilot SITL
+//! with `--autopilot` — and the bridge between them over real MAVLink on UDP, with a live
+//! table of what the bridge sees and its telemetry served to a ground station.
+
+pub mod autopilot;
+pub mod table;
+
+use crate::config::Config;
+use crate::runtime::{self, BridgeView, RunError};
+use lj9da_sim::{SimBus, SimConfig};
+use std::collections::HashMap;
+use std::io::IsTerminal;
+use std::net::UdpSocket;
+use std::path::PathBuf;
+use std::time::Duration;
+use thiserror::Error;
+use tokio::sync::watch;
+
+/// Where the bridge's telemetry goes for a ground station, unless the mapping file says.
+pub const DEFAULT_GCS: &str = "udpout:127.0.0.1:14550";
+
+#[derive(Debug, Clone, Default)]
+pub struct SitlOptions {
+    /// The airframe's mapping file; `None`: the embedded default (four servos).
+    pub config: Option<Config>,
+    /// Where that file is (the flight record goes beside it); `None`: the current folder.
+    pub config_path: Option<PathBuf>,
+    /// A real autopilot's MAVLink address instead of the simulated one.
+    pub autopilot: Option<String>,
+    /// Stop after this long; `None`: run until Ctrl-C.
+    pub seconds: Option<f64>,
+    /// Where to serve telemetry for a ground station.
+    pub gcs: Option<String>,
+    /// Print the table as plain snapshots once a second instead of redrawing it.
+    pub plain: bool,
+}
+
+#[derive(Debug, Error)]
+pub enum SitlError {
+    #[error("cannot start the simulated servos of bus {bus:?}: {source}")]
+    Servos {
+        bus: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("cannot find a free UDP port on 127.0.0.1 for the autopilot link: {0}")]
+    NoPort(#[source] std::io::Error),
+    #[error(transparent)]
+    Bridge(#[from] RunError),
+}
+
+/// A UDP port on loopback that nobody is using right now.
+fn free_udp_port() -> std::io::Result<u16> {
+    Ok(UdpSocket::bind("127.0.0.1:0")?.local_addr()?.port())
+}
+
+/// Run the chain until Ctrl-C (or `seconds`). Returns the bridge's last view for a summary.
+pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
+    let mut cfg = opts.config.clone().unwrap_or_else(Config::default_sitl);
+    let mut sims = Vec::new();
+    let mut ports = HashMap::new();
+    for bus in &cfg.buses {
+        let ids: Vec<u8> = cfg.servos_on(&bus.name).map(|s| s.id.get()).collect();
+        let sim = SimBus::spawn_pty(SimConfig {
+            ids,
+            baud: bus.baud.bits_per_second(),
+            ..SimConfig::default()
+        })
+        .map_err(|source| SitlError::Servos {
+            bus: bus.name.clone(),
+            source,
+        })?;
+        tracing::info!(bus = %bus.name, port = %sim.path().display(), "simulated servos ready");
+        ports.insert(bus.name.clone(), sim.path());
+        sims.push(sim);
+    }
+
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let mut autopilot_task = None;
+    match &opts.autopilot {
+        Some(address) => cfg.mavlink.connection = address.clone(),
+        None => {
+            let port = free_udp_port().map_err(SitlError::NoPort)?;
+            cfg.mavlink.connection = format!("udpin:127.0.0.1:{port}");
+            let ap = autopilot::AutopilotConfig {
+                connection: format!("udpout:127.0.0.1:{port}"),
+                channels: cfg
+                    .servos
+                    .iter()
+                    .map(|s| s.channel)
+                    .filter(|c| *c <= 16)
+                    .collect(),
+                ..Default::default()
+            };
+            let stop = stop_rx.clone();
+            autopilot_task = Some(tokio::spawn(autopilot::run(
+                ap,
+                autopilot::AutopilotHandle::default(),
+                stop,
+            )));
+        }
+    }
+    if let Some(gcs) = opts
+        .gcs
+        .clone()
+        .or_else(|| cfg.mavlink.gcs.clone())
+        .or(Some(DEFAULT_GCS.into()))
+    {
+        cfg.mavlink.gcs = Some(gcs);
+    }
+    eprintln!(
+        "lj9da-bridge sitl: {} servo(s) on {} simulated bus(es); autopilot {}; ground station telemetry on {}",
+        cfg.servos.len(),
+        cfg.buses.len(),
+        opts.autopilot
+            .as_deref()
+            .unwrap_or("simulated (ArduPilot-like)"),
+        cfg.mavlink.gcs.as_deref().unwrap_or("-"),
+    );
+
+    let (view_tx, view_rx) = watch::channel(BridgeView::default());
+    let table_task = tokio::spawn(table::show(
+        view_rx.clone(),
+        opts.plain || !std::io::stdout().is_terminal(),
+    ));
+    let record_dir = cfg.record.dir_for(opts.config_path.as_deref());
+    let run_opts = runtime::RunOptions {
+        ports,
+        view: Some(view_tx),
+        record_dir: Some(record_dir),
+        check_latency: false,
+    };
+    let bridge = tokio::spawn(runtime::run(cfg, run_opts, stop_rx));
+
+    let deadline = opts.seconds.map(Duration::from_secs_f64);
+    tokio::select! {
+        _ = async {
+            match deadline {
+                Some(d) => tokio::time::sleep(d).await,
+                None => std::future::pending().await,
+            }
+        } => {}
+        _ = shutdown_signal() => {}
+    }
+    let _ = stop_tx.send(true);
+    let result = bridge.await;
+    table_task.abort();
+    if let Some(t) = autopilot_task {
+        let _ = t.await;
+    }
+    let last = view_rx.borrow().clone();
+    println!("{}", table::render(&last));
+    for sim in sims {
+        sim.shutdown();
+    }
+    match result {
+        Ok(r) => r.map(|()| last).map_err(SitlError::from),
+        Err(join) => panic!("bridge task failed: {join}"),
+    }
+}
+
+/// Ctrl-C or SIGTERM.
+pub async fn shutdown_signal() {
+    #[cfg(unix)]
+    {
+        let mut term =
+            match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+                Ok(t) => t,
+                Err(_) => return std::future::pending().await,
+            };
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            _ = term.recv() => {}
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
+    }
+}

@@ -1,0 +1,89 @@
+//! The live terminal table of `sitl` (and the final snapshot it prints).
+
+use crate::runtime::BridgeView;
+use std::fmt::Write;
+use std::time::Duration;
+use tokio::sync::watch;
+
+fn opt(v: Option<f32>, width: usize, decimals: usize) -> String {
+    match v {
+        Some(v) => format!("{v:>width$.decimals$}"),
+        None => format!("{:>width$}", "-"),
+    }
+}
+
+/// The table as text.
+pub fn render(view: &BridgeView) -> String {
+    let mut out = String::new();
+    let autopilot = match view.autopilot {
+        Some((s, c)) => format!("autopilot {s}/{c}"),
+        None => "waiting for the autopilot's heartbeat".into(),
+    };
+    let _ = writeln!(
+        out,
+        "{autopilot}   output rate asked: {:.0} Hz   failsafe: {}",
+        view.output_rate_hz,
+        if view.failsafe { "ACTIVE" } else { "no" }
+    );
+    let _ = writeln!(
+        out,
+        "{:<14} {:<6} {:>3} {:>3} {:>9} {:>9} {:>8} {:>7} {:>7}  state",
+        "servo", "bus", "id", "ch", "goal mm", "pos mm", "current A", "temp C", "volt V"
+    );
+    for s in &view.servos {
+        let r = &s.report;
+        let mut state = format!("{:?}", s.health);
+        if r.temperature_error {
+            state.push_str(" TEMP-ERROR");
+        } else if r.temperature_alarm {
+            state.push_str(" temp-alarm");
+        }
+        if r.stalled {
+            state.push_str(" STALLED");
+        }
+        let _ = writeln!(
+            out,
+            "{:<14} {:<6} {:>3} {:>3} {} {} {} {} {}  {}",
+            s.name,
+            s.bus,
+            s.id,
+            s.channel,
+            opt(s.goal_mm.map(|g| g as f32), 9, 2),
+            opt(r.position_mm, 9, 2),
+            opt(r.current_a, 9, 2),
+            opt(r.temperature_c, 7, 0),
+            opt(r.voltage_v, 7, 2),
+            state
+        );
+    }
+    out
+}
+
+/// Show the table until the task is aborted: redrawn in place on a terminal (`plain` false),
+/// or printed once a second.
+pub async fn show(mut view: watch::Receiver<BridgeView>, plain: bool) {
+    let period = if plain {
+        Duration::from_secs(1)
+    } else {
+        Duration::from_millis(200)
+    };
+    let mut lines_drawn = 0usize;
+    loop {
+        tokio::time::sleep(period).await;
+        if view.has_changed().is_err() {
+            return;
+        }
+        let text = render(&view.borrow_and_update());
+        if plain {
+            println!("{text}");
+        } else {
+            if lines_drawn > 0 {
+                print!("\x1b[{lines_drawn}A\x1b[J");
+            }
+            print!("{text}");
+            lines_drawn = text.lines().count();
+        }
+        use std::io::Write as _;
+        let _ = std::io::stdout().flush();
+    }
+}

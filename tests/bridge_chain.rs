@@ -1,0 +1,352 @@
+//! The whole chain over real parts: simulated LJ9DA41s on pseudo-terminals, the bridge, a
+//! simulated ArduPilot-like autopilot and a ground station on real UDP sockets with real
+//! MAVLink framing.
+
+mod common;
+
+use common::{Chain, free_udp_port};
+use lj9da_bridge::bus::Health;
+use lj9da_bridge::record::{RecordBody, Recording, read_record, summary};
+use lj9da_bridge::simulation::autopilot::sweep_us;
+use mavlink::dialects::common::*;
+use mavlink::{AsyncMavConnection, MavHeader, MavlinkVersion};
+use std::time::Duration;
+
+const FOUR_SERVOS: &str = r#"
+[mavlink]
+connection = "udpin:127.0.0.1:14560"
+failsafe_timeout_ms = 400
+output_rate_hz = 40
+
+[telemetry]
+rate_hz = 10
+
+[[bus]]
+name = "wing"
+port = "sim"
+baud = 115200
+# Several chains share two cores while the tests run: allow for a scheduler's hiccup.
+turnaround_ms = 20
+
+[[servo]]
+name = "aileron_left"
+label = "ail_l"
+bus = "wing"
+id = 1
+channel = 1
+
+[[servo]]
+name = "aileron_right"
+label = "ail_r"
+bus = "wing"
+id = 2
+channel = 2
+
+[[servo]]
+name = "elevator"
+label = "elev"
+bus = "wing"
+id = 3
+channel = 3
+failsafe = 4.0
+
+[[servo]]
+name = "rudder"
+bus = "wing"
+id = 4
+channel = 4
+"#;
+
+const SECS: fn(u64) -> Duration = Duration::from_secs;
+
+/// The one record file a run left in `dir`, read back.
+fn only_record(dir: &std::path::Path) -> Recording {
+    let files: Vec<_> = std::fs::read_dir(dir)
+        .expect("record folder exists")
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "lj9rec"))
+        .collect();
+    assert_eq!(files.len(), 1, "{files:?}");
+    read_record(&files[0]).expect("record readable")
+}
+
+fn all_online(view: &lj9da_bridge::runtime::BridgeView) -> bool {
+    !view.servos.is_empty() && view.servos.iter().all(|s| s.health == Health::Online)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_ground_station_sees_the_bridge_and_every_servo() {
+    let chain = Chain::start(FOUR_SERVOS, true).await;
+    chain
+        .wait_view("every servo online", SECS(10), all_online)
+        .await;
+    chain
+        .gcs
+        .wait_for("heartbeat, named values and ESC blocks from the bridge", SECS(10), |heard| {
+            let from_bridge = |h: &MavHeader| h.component_id == 140 && h.system_id == 1;
+            let heartbeat = heard.iter().any(|(_, h, m)| {
+                from_bridge(h)
+                    && matches!(m, MavMessage::HEARTBEAT(hb) if hb.mavtype == MavType::MAV_TYPE_SERVO
+                        && hb.autopilot == MavAutopilot::MAV_AUTOPILOT_INVALID
+                        && hb.system_status == MavState::MAV_STATE_ACTIVE)
+            });
+            let names: Vec<String> = heard
+                .iter()
+                .filter_map(|(_, h, m)| match m {
+                    MavMessage::NAMED_VALUE_FLOAT(v) if from_bridge(h) => Some(v.name.to_str().unwrap().to_string()),
+                    _ => None,
+                })
+                .collect();
+            let every_value = ["ail_l", "ail_r", "elev", "rudder"]
+                .iter()
+                .all(|l| ["pos", "cur", "tmp", "vlt"].iter().all(|q| names.contains(&format!("{l}_{q}"))));
+            let esc = heard.iter().any(|(_, h, m)| {
+                from_bridge(h) && matches!(m, MavMessage::ESC_INFO(i) if i.count == 4 && i.info == 0b1111)
+            }) && heard.iter().any(|(_, h, m)| from_bridge(h) && matches!(m, MavMessage::ESC_STATUS(_)));
+            heartbeat && every_value && esc
+        })
+        .await;
+    // The voltage the ground station sees is the simulated supply, 12.0 V.
+    let volts: Vec<f32> = chain
+        .gcs
+        .all()
+        .into_iter()
+        .filter_map(|(_, _, m)| match m {
+            MavMessage::NAMED_VALUE_FLOAT(v) if v.name.to_str().unwrap() == "elev_vlt" => {
+                Some(v.value)
+            }
+            _ => None,
+        })
+        .collect();
+    assert!(volts.iter().all(|v| (*v - 12.0).abs() < 0.01), "{volts:?}");
+    // And the servos follow the autopilot's sweep (after the soft start): each simulated
+    // servo keeps within 3 mm of its goal.
+    let sim = chain.sims[0].handle();
+    let deadline = std::time::Instant::now() + SECS(8);
+    loop {
+        let lag: Vec<f32> = (1..=4u8)
+            .map(|id| sim.snapshot(id).unwrap())
+            .map(|s| (s.goal_mm - s.position_mm).abs())
+            .collect();
+        if lag.iter().all(|l| *l < 3.0) {
+            break;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "servos do not follow their goals: lag {lag:?} mm"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert!(chain.autopilot.outputs_sent() > 10);
+    assert_eq!(
+        chain.autopilot.output_rate_hz(),
+        40.0,
+        "the bridge asked for 40 Hz and got it"
+    );
+    chain.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn failsafe_is_entered_and_left_and_both_are_announced() {
+    let chain = Chain::start(FOUR_SERVOS, true).await;
+    chain
+        .wait_view("every servo online", SECS(10), all_online)
+        .await;
+    chain.autopilot.pause_outputs(true);
+    chain.wait_view("failsafe", SECS(5), |v| v.failsafe).await;
+    // The elevator's failsafe action is a position: 4 mm.
+    let sim = chain.sims[0].handle();
+    let deadline = std::time::Instant::now() + SECS(5);
+    while (sim.snapshot(3).unwrap().position_mm - 4.0).abs() > 0.1 {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "elevator did not reach its failsafe position"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    chain.autopilot.pause_outputs(false);
+    chain
+        .wait_view("failsafe left", SECS(5), |v| !v.failsafe)
+        .await;
+    chain
+        .gcs
+        .wait_for("failsafe texts", SECS(5), |heard| {
+            let texts: Vec<String> = heard
+                .iter()
+                .filter_map(|(_, _, m)| match m {
+                    MavMessage::STATUSTEXT(s) => Some(s.text.to_str().unwrap().to_string()),
+                    _ => None,
+                })
+                .collect();
+            texts.iter().any(|t| t.contains("failsafe: no outputs"))
+                && texts.iter().any(|t| t.contains("failsafe cleared"))
+        })
+        .await;
+    let texts = chain.gcs.statustexts();
+    let entered = texts
+        .iter()
+        .filter(|(_, t)| t.contains("failsafe: no outputs"))
+        .count();
+    assert_eq!(entered, 1, "{texts:?}");
+    chain.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_servo_unplugged_and_back_is_reported_lost_then_back() {
+    let chain = Chain::start(FOUR_SERVOS, true).await;
+    chain
+        .wait_view("every servo online", SECS(10), all_online)
+        .await;
+    let sim = chain.sims[0].handle();
+    assert!(sim.unplug(2));
+    chain
+        .wait_view("servo 2 offline", SECS(5), |v| {
+            v.servos[1].health == Health::Offline
+        })
+        .await;
+    assert!(sim.plug(2));
+    chain
+        .wait_view("servo 2 back online", SECS(10), all_online)
+        .await;
+    chain
+        .gcs
+        .wait_for("lost and back texts", SECS(5), |heard| {
+            let t: Vec<String> = heard
+                .iter()
+                .filter_map(|(_, _, m)| match m {
+                    MavMessage::STATUSTEXT(s) => Some(s.text.to_str().unwrap().to_string()),
+                    _ => None,
+                })
+                .collect();
+            t.contains(&"aileron_right: servo lost".to_string())
+                && t.contains(&"aileron_right: servo back".to_string())
+        })
+        .await;
+    let texts = chain.gcs.statustexts();
+    assert!(texts.contains(&(
+        MavSeverity::MAV_SEVERITY_CRITICAL,
+        "aileron_right: servo lost".into()
+    )));
+    // While it was gone the ESC block said so.
+    let offline_seen = chain.gcs.all().iter().any(|(_, _, m)| {
+        matches!(m, MavMessage::ESC_INFO(i) if i.info & 0b10 == 0 && i.failure_flags[1] & EscFailureFlags::ESC_FAILURE_GENERIC.bits() != 0)
+    });
+    assert!(offline_seen);
+    // Back on the bus, it follows its goals again.
+    let deadline = std::time::Instant::now() + SECS(5);
+    loop {
+        let s = sim.snapshot(2).unwrap();
+        if s.force == lj9da_sim::Force::On && (s.goal_mm - s.position_mm).abs() < 3.0 {
+            break;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "servo 2 not driven after coming back: {s:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    chain.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_overheating_servo_produces_one_warning_and_one_error() {
+    let chain = Chain::start(FOUR_SERVOS, true).await;
+    chain
+        .wait_view("every servo online", SECS(10), all_online)
+        .await;
+    let sim = chain.sims[0].handle();
+    assert!(sim.overheat(4));
+    chain
+        .wait_view("temperature error on the rudder", SECS(30), |v| {
+            v.servos[3].report.temperature_error
+        })
+        .await;
+    // Let a few more seconds of telemetry pass: the servo stays hot and latched.
+    tokio::time::sleep(SECS(2)).await;
+    let texts: Vec<_> = chain
+        .gcs
+        .statustexts()
+        .into_iter()
+        .filter(|(_, t)| t.starts_with("rudder:"))
+        .collect();
+    let warnings: Vec<_> = texts
+        .iter()
+        .filter(|(s, _)| *s == MavSeverity::MAV_SEVERITY_WARNING)
+        .collect();
+    let errors: Vec<_> = texts
+        .iter()
+        .filter(|(s, _)| (*s as u32) <= MavSeverity::MAV_SEVERITY_ERROR as u32)
+        .collect();
+    assert_eq!(warnings.len(), 1, "{texts:?}");
+    assert!(warnings[0].1.contains("temperature alarm"), "{texts:?}");
+    assert_eq!(errors.len(), 1, "{texts:?}");
+    assert!(errors[0].1.contains("overheat"), "{texts:?}");
+    let record_dir = chain.record_dir.clone();
+    chain.stop().await;
+    // The flight record has the same story: both STATUSTEXTs, and the rudder's alarm and error
+    // in its telemetry flags.
+    let recording = only_record(&record_dir);
+    assert!(recording.closed, "{:?}", recording.notes);
+    let events: Vec<&str> = recording
+        .records
+        .iter()
+        .filter_map(|r| match &r.body {
+            RecordBody::Event { text, .. } => Some(text.as_str()),
+            _ => None,
+        })
+        .collect();
+    assert!(events.iter().any(|t| t.starts_with("rudder: temperature alarm")), "{events:?}");
+    assert!(events.iter().any(|t| t.starts_with("rudder: overheat")), "{events:?}");
+    let rudder = &summary(&recording).servos[3];
+    assert!(rudder.temperature_alarms >= 1 && rudder.temperature_errors >= 1, "{rudder:?}");
+}
+
+/// SERVO_OUTPUT_RAW as MAVLink 1 from an autopilot played by the test: channels 9–16 (the
+/// MAVLink 2 extension) are absent and read as 0 ("no output").
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mavlink_1_outputs_drive_the_servos() {
+    let chain = Chain::start(FOUR_SERVOS, false).await;
+    let mut ap =
+        mavlink::connect_async::<MavMessage>(&format!("udpout:127.0.0.1:{}", chain.autopilot_port))
+            .await
+            .unwrap();
+    ap.set_protocol_version(MavlinkVersion::V1);
+    let header = MavHeader {
+        system_id: 3,
+        component_id: 1,
+        sequence: 0,
+    };
+    let hb = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        mavtype: MavType::MAV_TYPE_QUADROTOR,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+        ..Default::default()
+    });
+    let sim = chain.sims[0].handle();
+    let deadline = std::time::Instant::now() + SECS(10);
+    loop {
+        ap.send(&header, &hb).await.unwrap();
+        let out = MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
+            servo1_raw: 1760, // +10 mm
+            servo2_raw: 1280, // −10 mm
+            servo3_raw: 900,  // PX4's disarmed value: outside 920–2120, hold
+            servo4_raw: 1520,
+            ..Default::default()
+        });
+        ap.send(&header, &out).await.unwrap();
+        let (a, b) = (sim.snapshot(1).unwrap(), sim.snapshot(2).unwrap());
+        if (a.position_mm - 10.0).abs() < 0.05 && (b.position_mm + 10.0).abs() < 0.05 {
+            break;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "servos did not reach ±10 mm: {a:?} {b:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    // Servo 3 only ever got "no output": never switched on, never moved.
+    let s3 = sim.snapshot(3).unwrap();
+    assert_eq!(s3.force, lj9da_sim::Force::Off);
+    chain.stop().await;
+    let _ = sweep_us;
+    let _ = free_udp_port;
+}

@@ -1,0 +1,262 @@
+//! The bus driver against a simulated bus with faults: a servo unplugged and plugged back, a
+//! servo of another model, an adapter that echoes, a port that disappears, an overheating servo,
+//! a blocked rod.
+
+mod bus_support;
+
+use bus_support::*;
+use lj9da_bridge::bus::{BusEvent, ForceState, Goal, Health, ShutdownForce, spawn_bus};
+use lj9da_bridge::protocol::{BaudRate, MmCenti};
+use lj9da_sim::{BusEvent as SimEvent, FaultKind, Force, HostPacket};
+use std::time::Duration;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_unplugged_servo_goes_offline_and_is_reinitialised_when_plugged_back() {
+    let ids = [1, 2];
+    let sim = spawn_sim(sim_config(&ids, 115_200));
+    let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
+    let mut events = bus.events();
+    wait_status(&bus, "every servo online", |s| {
+        s.servos.iter().all(|s| s.health == Health::Online)
+    })
+    .await;
+    for n in ids {
+        bus.set_goal(id(n), Goal::Position(MmCenti(100)));
+    }
+    wait_status(&bus, "force on", all_online_with_force).await;
+
+    sim.handle().unplug(2);
+    wait_event(&mut events, "servo 2 lost", |e| {
+        *e == BusEvent::ServoLost { id: id(2) }
+    })
+    .await;
+    let st = bus.status();
+    assert_eq!(st.servo(id(2)).unwrap().health, Health::Offline);
+    assert_eq!(st.servo(id(1)).unwrap().health, Health::Online);
+
+    // Plugged back: power-on state (force off, goal 0). The bus master finds it, reads it
+    // again and switches force back on to the goal it still has.
+    sim.handle().plug(2);
+    wait_event(&mut events, "servo 2 back", |e| {
+        *e == BusEvent::ServoBack { id: id(2) }
+    })
+    .await;
+    wait_event(&mut events, "servo 2 online again", |e| {
+        *e == BusEvent::ServoOnline { id: id(2) }
+    })
+    .await;
+    wait_status(&bus, "servo 2 force on at its goal", |s| {
+        s.servo(id(2)).is_some_and(|s| {
+            s.force == ForceState::On
+                && s.telemetry
+                    .is_some_and(|t| (t.present_position.0 - 100).abs() <= 4)
+        })
+    })
+    .await;
+    assert_eq!(sim.handle().snapshot(2).unwrap().force, Force::On);
+    bus.shutdown(ShutdownForce::AsIs).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_servo_of_another_model_is_refused() {
+    let ids = [1, 2];
+    let sim = spawn_sim(sim_config(&ids, 115_200));
+    sim.handle().set_model_number(2, 0x1234);
+    let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
+    let mut events = bus.events();
+    let event = wait_event(&mut events, "wrong model", |e| {
+        matches!(e, BusEvent::WrongModel { .. })
+    })
+    .await;
+    assert_eq!(
+        event,
+        BusEvent::WrongModel {
+            id: id(2),
+            found: 0x1234
+        }
+    );
+    assert!(event.to_string().contains("not an LJ9DA41"));
+    for n in ids {
+        bus.set_goal(id(n), Goal::Position(MmCenti(200)));
+    }
+    wait_status(&bus, "servo 1 commanded", |s| {
+        s.servo(id(1)).is_some_and(|s| s.goal == Some(MmCenti(200)))
+    })
+    .await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let st = bus.status();
+    assert_eq!(st.servo(id(2)).unwrap().health, Health::WrongModel);
+    assert_eq!(st.servo(id(2)).unwrap().goal, None);
+    let snap = sim.handle().snapshot(2).unwrap();
+    assert_eq!(snap.force, Force::Off, "never switched on");
+    assert_eq!(snap.goal_mm, 0.0, "never commanded");
+    bus.shutdown(ShutdownForce::AsIs).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_echoing_adapter_works() {
+    let ids = [1, 2, 3];
+    let sim = spawn_sim(sim_config(&ids, 115_200));
+    sim.handle().set_echo(true);
+    let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
+    wait_status(&bus, "every servo online", |s| {
+        s.servos.iter().all(|s| s.health == Health::Online)
+    })
+    .await;
+    for n in ids {
+        bus.set_goal(id(n), Goal::Position(MmCenti(-50 * i16::from(n))));
+    }
+    let st = wait_status(&bus, "every servo at its goal", |s| {
+        s.servos.iter().all(|s| {
+            s.telemetry
+                .is_some_and(|t| (t.present_position.0 + 50 * i16::from(s.id.get())).abs() <= 4)
+        })
+    })
+    .await;
+    assert!(st.counters.echoes > 20, "{:?}", st.counters);
+    assert_eq!(st.counters.timeouts, 0, "{:?}", st.counters);
+    assert_eq!(sim.handle().stats().collisions, 0);
+    bus.shutdown(ShutdownForce::AsIs).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_port_that_disappears_is_reopened() {
+    let ids = [1, 2];
+    let link = link_path("reopen");
+    let mut config = sim_config(&ids, 115_200);
+    config.link = Some(link.clone());
+    let sim = spawn_sim(config);
+    let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), link.clone());
+    let mut events = bus.events();
+    wait_status(&bus, "every servo online", |s| {
+        s.servos.iter().all(|s| s.health == Health::Online)
+    })
+    .await;
+    for n in ids {
+        bus.set_goal(id(n), Goal::Position(MmCenti(30)));
+    }
+    wait_status(&bus, "force on", all_online_with_force).await;
+
+    sim.handle().disconnect_port();
+    wait_event(&mut events, "port lost", |e| {
+        matches!(e, BusEvent::PortLost { .. })
+    })
+    .await;
+    assert!(!bus.status().port_open);
+    // Goals keep being accepted while the port is away.
+    bus.set_goal(id(1), Goal::Position(MmCenti(-130)));
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert!(!bus.is_finished());
+
+    sim.handle().reconnect_port();
+    wait_event(&mut events, "port back", |e| *e == BusEvent::PortBack).await;
+    wait_status(
+        &bus,
+        "servo 1 at the goal given while the port was away",
+        |s| {
+            s.port_open
+                && s.servo(id(1))
+                    .and_then(|s| s.telemetry)
+                    .is_some_and(|t| (t.present_position.0 + 130).abs() <= 4)
+        },
+    )
+    .await;
+    bus.shutdown(ShutdownForce::AsIs).await;
+    let _ = std::fs::remove_file(&link);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_overheated_servo_is_reported_and_not_hammered_with_force_on() {
+    let ids = [1, 2];
+    let sim = spawn_sim(sim_config(&ids, 115_200));
+    let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
+    let mut events = bus.events();
+    wait_status(&bus, "every servo online", |s| {
+        s.servos.iter().all(|s| s.health == Health::Online)
+    })
+    .await;
+    for n in ids {
+        bus.set_goal(id(n), Goal::Position(MmCenti(0)));
+    }
+    wait_status(&bus, "force on", all_online_with_force).await;
+
+    sim.handle().overheat(1);
+    wait_event(&mut events, "temperature alarm", |e| {
+        *e == BusEvent::TemperatureAlarm {
+            id: id(1),
+            on: true,
+        }
+    })
+    .await;
+    wait_event(&mut events, "temperature error", |e| {
+        *e == BusEvent::TemperatureError { id: id(1) }
+    })
+    .await;
+    // Keep asking for moves for a while: no force-ON packet reaches servo 1.
+    let packets = sim.handle().subscribe();
+    for k in 0..40 {
+        for n in ids {
+            bus.set_goal(id(n), Goal::Position(MmCenti(k * 5)));
+        }
+        tokio::time::sleep(Duration::from_millis(25)).await;
+    }
+    let force_writes_to_1 = packets
+        .try_iter()
+        .filter(|e| match e {
+            SimEvent::Packet(p) => match &p.packet {
+                HostPacket::Short(s) => s.id == 1 && s.address == 0x24,
+                HostPacket::Long(_) => false,
+            },
+            _ => false,
+        })
+        .count();
+    assert_eq!(force_writes_to_1, 0);
+    let st = bus.status();
+    assert_eq!(st.servo(id(1)).unwrap().health, Health::TemperatureError);
+    assert!(st.servo(id(1)).unwrap().flags.temperature_error());
+    assert_eq!(st.servo(id(2)).unwrap().health, Health::Online);
+
+    // Cooled and power-cycled: re-initialised and switched on again.
+    sim.handle().clear(Some(1), FaultKind::Overheat);
+    sim.handle().set_temperature(1, 30.0);
+    sim.handle().power_cycle(1);
+    wait_status(&bus, "servo 1 online with force on", |s| {
+        s.servo(id(1))
+            .is_some_and(|s| s.health == Health::Online && s.force == ForceState::On)
+    })
+    .await;
+    bus.shutdown(ShutdownForce::AsIs).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_blocked_rod_is_reported_stalled() {
+    let ids = [1];
+    let sim = spawn_sim(sim_config(&ids, 115_200));
+    let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
+    let mut events = bus.events();
+    wait_status(&bus, "online", |s| {
+        s.servos.iter().all(|s| s.health == Health::Online)
+    })
+    .await;
+    bus.set_goal(id(1), Goal::Position(MmCenti(0)));
+    wait_status(&bus, "force on", all_online_with_force).await;
+    sim.handle().set_stalled(1, true);
+    bus.set_goal(id(1), Goal::Position(MmCenti(1000)));
+    wait_event(&mut events, "stalled", |e| {
+        *e == BusEvent::Stalled {
+            id: id(1),
+            on: true,
+        }
+    })
+    .await;
+    assert!(bus.status().servo(id(1)).unwrap().stalled);
+    sim.handle().set_stalled(1, false);
+    wait_event(&mut events, "moving again", |e| {
+        *e == BusEvent::Stalled {
+            id: id(1),
+            on: false,
+        }
+    })
+    .await;
+    bus.shutdown(ShutdownForce::AsIs).await;
+}

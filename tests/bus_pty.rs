@@ -1,0 +1,142 @@
+//! The bus driver over a real pseudo-terminal against the simulated LJ9DA41 bus: commands reach
+//! the servos, telemetry comes back, the line is never talked over, shutdown leaves the servos
+//! as asked.
+
+mod bus_support;
+
+use bus_support::*;
+use lj9da_bridge::bus::{ForceState, Goal, Health, ShutdownForce, spawn_bus};
+use lj9da_bridge::protocol::{BaudRate, MmCenti};
+use lj9da_sim::{BusEvent as SimEvent, Force, HostPacket};
+use std::time::Duration;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn servos_reach_their_goals_and_telemetry_is_published() {
+    let ids = [1, 2, 3, 4];
+    let sim = spawn_sim(sim_config(&ids, 115_200));
+    let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
+    let st = wait_status(&bus, "every servo online", |s| {
+        s.servos.iter().all(|s| s.health == Health::Online)
+    })
+    .await;
+    for s in &st.servos {
+        assert_eq!(s.model, Some(0x7510));
+        assert_eq!(s.force, ForceState::Off, "no force before a goal");
+    }
+    let goals = [(1, 250), (2, -250), (3, 500), (4, -75)];
+    for (n, mm_centi) in goals {
+        bus.set_goal(id(n), Goal::Position(MmCenti(mm_centi)));
+    }
+    // The first move is a soft start at 10 mm/s: 5 mm takes 0.5 s.
+    let st = wait_status(&bus, "every servo at its goal", |s| {
+        goals.iter().all(|&(n, goal)| {
+            s.servo(id(n))
+                .and_then(|s| s.telemetry)
+                .is_some_and(|t| (t.present_position.0 - goal).abs() <= 4)
+        })
+    })
+    .await;
+    for (n, goal) in goals {
+        let snap = sim.handle().snapshot(n).unwrap();
+        assert_eq!(snap.force, Force::On);
+        assert!(
+            (snap.position_mm - f32::from(goal) / 100.0).abs() < 0.05,
+            "servo {n}: {snap:?}"
+        );
+        let s = st.servo(id(n)).unwrap();
+        assert_eq!(s.goal, Some(MmCenti(goal)));
+        let t = s.telemetry.unwrap();
+        assert!((11.9..=12.1).contains(&t.present_voltage.volts()), "{t:?}");
+        assert!(t.present_temperature.0 >= 20, "{t:?}");
+        assert!(t.present_load.0 > 0, "{t:?}");
+        assert!(s.age.unwrap() < Duration::from_millis(200), "fresh: {s:?}");
+    }
+    // A second, quick move: the long packet carries every servo.
+    let events = sim.handle().subscribe();
+    bus.set_goal(id(3), Goal::Position(MmCenti(-600)));
+    let deadline = std::time::Instant::now() + PATIENCE;
+    let long = loop {
+        let event = events
+            .recv_timeout(deadline.saturating_duration_since(std::time::Instant::now()))
+            .expect("a long packet");
+        if let SimEvent::Packet(p) = event
+            && let HostPacket::Long(_) = p.packet
+        {
+            break p.packet;
+        }
+    };
+    assert_eq!(
+        long.goal_positions(),
+        vec![(1, 250), (2, -250), (3, -600), (4, -75)]
+    );
+    wait_status(&bus, "servo 3 at −6 mm", |s| {
+        s.servo(id(3))
+            .and_then(|s| s.telemetry)
+            .is_some_and(|t| (t.present_position.0 + 600).abs() <= 4)
+    })
+    .await;
+    bus.shutdown(ShutdownForce::AsIs).await;
+    assert!(bus.is_finished());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_line_is_never_talked_over_and_every_request_is_answered() {
+    let ids = [1, 2, 3];
+    let sim = spawn_sim(sim_config(&ids, 460_800));
+    let bus = spawn_bus(bus_config(&ids, BaudRate::B460800), sim.path());
+    wait_status(&bus, "every servo online", |s| {
+        s.servos.iter().all(|s| s.health == Health::Online)
+    })
+    .await;
+    // Goals at ~500 Hz for a second while telemetry is polled in the gaps.
+    for k in 0..500i16 {
+        for n in ids {
+            bus.set_goal(id(n), Goal::Position(MmCenti((k % 50) * 10 - 250)));
+        }
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    // The last goals (+2.40 mm) reach the wire, then every goal is accounted for.
+    let st = wait_status(&bus, "the last goals on the wire", |s| {
+        s.servos.iter().all(|s| s.goal == Some(MmCenti(240)))
+    })
+    .await;
+    let stats = sim.handle().stats();
+    let c = st.counters;
+    assert_eq!(stats.collisions, 0, "{stats:?} {c:?}");
+    assert_eq!(c.timeouts, 0, "{c:?}");
+    assert_eq!(c.bad_sums, 0);
+    assert!(c.command_frames > 100, "{c:?}");
+    assert!(c.telemetry_replies > 300, "{c:?}");
+    assert_eq!(c.goals_received, 1500);
+    assert_eq!(
+        c.goals_received,
+        c.goals_sent + c.goals_superseded + c.goals_unchanged,
+        "every goal sent, superseded or unchanged: {c:?}"
+    );
+    bus.shutdown(ShutdownForce::AsIs).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_with_force_off_leaves_every_servo_limp() {
+    let ids = [1, 2];
+    let sim = spawn_sim(sim_config(&ids, 115_200));
+    let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
+    wait_status(&bus, "every servo online", |s| {
+        s.servos.iter().all(|s| s.health == Health::Online)
+    })
+    .await;
+    for n in ids {
+        bus.set_goal(id(n), Goal::Position(MmCenti(0)));
+    }
+    wait_status(&bus, "force on", all_online_with_force).await;
+    assert_eq!(sim.handle().snapshot(1).unwrap().force, Force::On);
+    bus.shutdown(ShutdownForce::Off).await;
+    assert!(bus.is_finished());
+    for n in ids {
+        assert_eq!(
+            sim.handle().snapshot(n).unwrap().force,
+            Force::Off,
+            "servo {n}"
+        );
+    }
+}

@@ -1,0 +1,105 @@
+//! Shared helpers of the bus integration tests: a simulated bus on a pseudo-terminal, a bus
+//! configuration for it, and waits with a deadline (a test that waits too long fails with what
+//! it was waiting for, never hangs).
+
+#![allow(dead_code)]
+
+use lj9da_bridge::bus::{BusConfig, BusEvent, BusHandle, BusStatus, ServoSetup};
+use lj9da_bridge::protocol::{BaudRate, ServoId};
+use lj9da_sim::{SimBus, SimConfig};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
+use tokio::sync::broadcast;
+
+/// How long a test waits for something that should take well under a second.
+pub const PATIENCE: Duration = Duration::from_secs(10);
+
+pub fn id(n: u8) -> ServoId {
+    ServoId::new(n).unwrap()
+}
+
+pub fn sim_config(ids: &[u8], baud: u32) -> SimConfig {
+    SimConfig {
+        ids: ids.to_vec(),
+        baud,
+        ..SimConfig::default()
+    }
+}
+
+pub fn spawn_sim(config: SimConfig) -> SimBus {
+    SimBus::spawn_pty(config).expect("simulated bus on a pty")
+}
+
+/// The simulated servos run in real time on a thread of their own; on a loaded machine (tests
+/// run in parallel, two cores) that thread can read a request several milliseconds late and so
+/// answer late. The tests check rules, not timing: they give the bus master a turnaround
+/// allowance that covers such stalls. (The bench uses the default and reports timeouts.)
+pub const TEST_TURNAROUND: Duration = Duration::from_millis(20);
+
+pub fn bus_config(ids: &[u8], baud: BaudRate) -> BusConfig {
+    let mut cfg = BusConfig::new(
+        "test bus",
+        baud,
+        ids.iter()
+            .map(|&n| ServoSetup::new(id(n), format!("servo{n}")))
+            .collect(),
+    );
+    cfg.turnaround = TEST_TURNAROUND;
+    cfg
+}
+
+/// A path for a symlink to the simulated device, unique to this test.
+pub fn link_path(test: &str) -> PathBuf {
+    static N: AtomicUsize = AtomicUsize::new(0);
+    std::env::temp_dir().join(format!(
+        "lj9da-bus-{test}-{}-{}",
+        std::process::id(),
+        N.fetch_add(1, Ordering::Relaxed)
+    ))
+}
+
+/// Wait until the bus status satisfies `done`; fail with `what` and the last status otherwise.
+pub async fn wait_status(
+    bus: &BusHandle,
+    what: &str,
+    done: impl Fn(&BusStatus) -> bool,
+) -> BusStatus {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    let mut watch = bus.watch_status();
+    loop {
+        let status = watch.borrow_and_update().clone();
+        if done(&status) {
+            return status;
+        }
+        if tokio::time::Instant::now() >= deadline {
+            panic!("timed out waiting for {what}; last status: {status:#?}");
+        }
+        let _ = tokio::time::timeout(Duration::from_millis(50), watch.changed()).await;
+    }
+}
+
+/// Wait for an event matching `want`; fail with `what` otherwise.
+pub async fn wait_event(
+    events: &mut broadcast::Receiver<BusEvent>,
+    what: &str,
+    want: impl Fn(&BusEvent) -> bool,
+) -> BusEvent {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        match tokio::time::timeout_at(deadline, events.recv()).await {
+            Ok(Ok(event)) if want(&event) => return event,
+            Ok(Ok(_)) | Ok(Err(broadcast::error::RecvError::Lagged(_))) => {}
+            Ok(Err(broadcast::error::RecvError::Closed)) => panic!("bus closed waiting for {what}"),
+            Err(_) => panic!("timed out waiting for {what}"),
+        }
+    }
+}
+
+/// Every servo of `status` online with force ON.
+pub fn all_online_with_force(status: &BusStatus) -> bool {
+    status.servos.iter().all(|s| {
+        s.health == lj9da_bridge::bus::Health::Online
+            && s.force == lj9da_bridge::bus::ForceState::On
+    })
+}

@@ -1,0 +1,103 @@
+//! The files of a service installation: the systemd unit and the udev rule.
+
+use lj9da_bridge::deploy::{DEFAULT_BINARY, DEFAULT_CONFIG, systemd_unit, udev_rule};
+use std::path::Path;
+
+/// The unit's `[Section]` → `key=value` lines (comments and blank lines skipped); panics on
+/// a line that is neither.
+fn ini(text: &str) -> Vec<(String, String, String)> {
+    let mut section = String::new();
+    let mut out = Vec::new();
+    for line in text.lines() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') || line.starts_with(';') {
+            continue;
+        }
+        if let Some(name) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
+            section = name.to_string();
+            continue;
+        }
+        let (key, value) = line
+            .split_once('=')
+            .unwrap_or_else(|| panic!("not key=value: {line}"));
+        assert!(!section.is_empty(), "{line} before any section");
+        out.push((section.clone(), key.to_string(), value.to_string()));
+    }
+    out
+}
+
+fn get<'a>(entries: &'a [(String, String, String)], section: &str, key: &str) -> Vec<&'a str> {
+    entries
+        .iter()
+        .filter(|(s, k, _)| s == section && k == key)
+        .map(|(_, _, v)| v.as_str())
+        .collect()
+}
+
+#[test]
+fn the_systemd_unit_runs_the_bridge_as_an_unprivileged_service_logging_to_journald() {
+    let unit = systemd_unit(Path::new(DEFAULT_BINARY), Path::new(DEFAULT_CONFIG));
+    let e = ini(&unit);
+    assert_eq!(get(&e, "Service", "Type"), ["simple"]);
+    assert_eq!(
+        get(&e, "Service", "ExecStart"),
+        ["/usr/local/bin/lj9da-bridge run --config /etc/lj9da-bridge/bridge.toml"]
+    );
+    assert_eq!(get(&e, "Service", "Restart"), ["on-failure"]);
+    assert_eq!(get(&e, "Service", "User"), ["lj9da"]);
+    assert_eq!(get(&e, "Service", "SupplementaryGroups"), ["dialout"]);
+    assert_eq!(get(&e, "Service", "StandardError"), ["journal"]);
+    assert_eq!(get(&e, "Service", "StateDirectory"), ["lj9da-bridge"]);
+    assert!(
+        get(&e, "Service", "Environment").contains(&"RUST_LOG=warn,lj9da_bridge=info"),
+        "{unit}"
+    );
+    assert_eq!(get(&e, "Install", "WantedBy"), ["multi-user.target"]);
+    assert_eq!(get(&e, "Unit", "After"), ["network-online.target"]);
+}
+
+#[test]
+fn unit_paths_with_spaces_or_percent_signs_are_quoted_and_escaped() {
+    let unit = systemd_unit(
+        Path::new("/opt/lj9da bridge/lj9da-bridge"),
+        Path::new("/etc/lj9da-bridge/100%.toml"),
+    );
+    let e = ini(&unit);
+    assert_eq!(
+        get(&e, "Service", "ExecStart"),
+        ["\"/opt/lj9da bridge/lj9da-bridge\" run --config /etc/lj9da-bridge/100%%.toml"]
+    );
+}
+
+#[test]
+fn the_udev_rule_sets_ftdi_latency_timers_to_1_ms() {
+    let rule = udev_rule();
+    let rules: Vec<&str> = rule
+        .lines()
+        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
+        .collect();
+    assert_eq!(
+        rules[0],
+        r#"ACTION=="add", SUBSYSTEM=="usb-serial", DRIVER=="ftdi_sio", ATTR{latency_timer}="1""#
+    );
+    assert!(rules[1].contains(r#"ATTRS{idVendor}=="0403""#));
+    assert!(rules[1].contains(r#"ATTRS{idProduct}=="6001|6010|6011|6014|6015""#));
+    assert!(rules[1].ends_with(r#"ATTR{device/latency_timer}="1""#));
+    assert_eq!(rules.len(), 2);
+    for r in rules {
+        // Every key is KEY op "value", separated by ", ".
+        for part in r.split(", ") {
+            let (key, value) = part
+                .split_once("==")
+                .or_else(|| part.split_once('='))
+                .unwrap_or_else(|| panic!("{part}"));
+            assert!(
+                !key.is_empty() && value.starts_with('"') && value.ends_with('"'),
+                "{part}"
+            );
+        }
+    }
+    for chip in ["FT232R", "FT232H", "FT-X"] {
+        assert!(rule.contains(chip));
+    }
+}

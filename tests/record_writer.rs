@@ -1,0 +1,385 @@
+//! The recorder: rotation keeps the total size, the handle never blocks, nothing is lost
+//! without being counted, and what was handed over reaches the disk without a clean stop.
+
+use lj9da_bridge::bus::Goal;
+use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, Telemetry};
+use lj9da_bridge::record::format::RecordServo;
+use lj9da_bridge::record::rotate::list_record_files;
+use lj9da_bridge::record::{
+    RecordBody, RecordLimits, Recorder, RecorderOptions, Recording, read_record,
+};
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant, SystemTime};
+
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(tag: &str) -> Self {
+        static N: AtomicU32 = AtomicU32::new(0);
+        let path = std::env::temp_dir().join(format!(
+            "lj9da-{tag}-{}-{}",
+            std::process::id(),
+            N.fetch_add(1, Ordering::Relaxed)
+        ));
+        let _ = std::fs::remove_dir_all(&path);
+        std::fs::create_dir_all(&path).unwrap();
+        TempDir(path)
+    }
+    fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn servos() -> Vec<RecordServo> {
+    vec![
+        RecordServo::new("left", "wing", 1, 1),
+        RecordServo::new("right", "wing", 2, 2),
+    ]
+}
+
+fn sample(k: u64) -> Telemetry {
+    Telemetry {
+        present_position: MmCenti((k % 5000) as i16 - 2500),
+        present_time: Ms10(0),
+        present_load: Ma10(40 + (k % 7) as u16),
+        present_temperature: Celsius(30),
+        present_voltage: Mv10(1200),
+    }
+}
+
+fn total_size(dir: &Path) -> u64 {
+    list_record_files(dir)
+        .unwrap()
+        .iter()
+        .map(|f| f.bytes)
+        .sum()
+}
+
+/// A record file of `bytes` bytes, last modified `age` ago.
+fn old_file(dir: &Path, name: &str, bytes: usize, age: Duration) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, vec![0u8; bytes]).unwrap();
+    File::options()
+        .write(true)
+        .open(&path)
+        .unwrap()
+        .set_modified(SystemTime::now() - age)
+        .unwrap();
+    path
+}
+
+#[test]
+fn start_deletes_the_oldest_record_files_first_to_stay_under_the_total() {
+    let dir = TempDir::new("rot");
+    let hour = Duration::from_secs(3600);
+    // Names sort the other way round: age is what counts.
+    let oldest = old_file(dir.path(), "z.lj9rec", 10_000, 3 * hour);
+    let middle = old_file(dir.path(), "y.lj9rec", 10_000, 2 * hour);
+    let newest = old_file(dir.path(), "x.lj9rec", 10_000, hour);
+    let other = old_file(dir.path(), "notes.txt", 50_000, 4 * hour);
+    let limits = RecordLimits {
+        max_total_bytes: 40_000,
+        max_file_bytes: 16_000,
+    };
+    // The others may take 40 000 − 16 000 = 24 000 bytes: only the oldest must go.
+    let handle = Recorder::start(dir.path(), &servos(), limits).unwrap();
+    assert!(!oldest.exists());
+    assert!(middle.exists() && newest.exists());
+    assert!(
+        other.exists(),
+        "files that are not records are never touched"
+    );
+    let stats = handle.finish();
+
+    // Tighter: the others may take 4 000 bytes, so both 10 kB files go, oldest first, and
+    // the small file of the first run (newest) stays.
+    let limits = RecordLimits {
+        max_total_bytes: 20_000,
+        max_file_bytes: 16_000,
+    };
+    let handle = Recorder::start(dir.path(), &servos(), limits).unwrap();
+    assert!(!middle.exists() && !newest.exists());
+    assert!(stats.files[0].exists());
+    assert!(total_size(dir.path()) <= 4_000 + 1_000);
+    assert!(other.exists());
+    handle.finish();
+}
+
+#[test]
+fn a_long_run_continues_in_new_files_and_keeps_the_total_under_the_limit() {
+    let dir = TempDir::new("parts");
+    let limits = RecordLimits {
+        max_total_bytes: 40_000,
+        max_file_bytes: 8_000,
+    };
+    let handle = Recorder::start(dir.path(), &servos(), limits).unwrap();
+    let start = handle.start_instant();
+    let n = 6_000u64;
+    for k in 0..n {
+        let at = start + Duration::from_millis(k);
+        handle.telemetry(at, (k % 2) as usize, &sample(k), ReplyFlags(0));
+        if k % 500 == 0 {
+            // Keep the queue from filling: this test is about files, not drops.
+            while handle.stats().accepted > handle.stats().written + 10_000 {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+    }
+    let stats = handle.finish();
+    assert_eq!(stats.dropped(), 0);
+    assert_eq!(stats.written, n);
+    assert!(
+        stats.files.len() >= 10,
+        "{} parts for ~140 kB",
+        stats.files.len()
+    );
+
+    // What is left: the newest parts, under the total (plus one record of slack).
+    let left: Vec<PathBuf> = list_record_files(dir.path())
+        .unwrap()
+        .into_iter()
+        .map(|f| f.path)
+        .collect();
+    assert!(
+        total_size(dir.path()) <= 40_000 + 64,
+        "{}",
+        total_size(dir.path())
+    );
+    let kept = &stats.files[stats.files.len() - left.len()..];
+    let mut left_sorted = left.clone();
+    left_sorted.sort();
+    let mut kept_sorted = kept.to_vec();
+    kept_sorted.sort();
+    assert_eq!(
+        left_sorted, kept_sorted,
+        "the oldest parts were deleted first"
+    );
+
+    let mut previous_t = None;
+    for (i, path) in kept.iter().enumerate() {
+        let rec = read_record(path).unwrap();
+        let part = usize::from(rec.header.part);
+        assert_eq!(part, stats.files.len() - kept.len() + i);
+        let last = i + 1 == kept.len();
+        assert_eq!(
+            rec.records.last().unwrap().body,
+            RecordBody::End { continued: !last }
+        );
+        assert!(rec.closed);
+        for r in &rec.records {
+            if let RecordBody::Telemetry { .. } = r.body {
+                assert!(
+                    previous_t.is_none_or(|p| r.t_us > p),
+                    "time runs on across parts"
+                );
+                previous_t = Some(r.t_us);
+            }
+        }
+    }
+    assert_eq!(previous_t, Some((n - 1) * 1000), "the last sample is kept");
+}
+
+#[test]
+fn a_flood_never_blocks_and_every_record_is_written_or_counted_as_dropped() {
+    let dir = TempDir::new("flood");
+    let handle = Recorder::start_with(
+        dir.path(),
+        &servos(),
+        RecordLimits::default(),
+        RecorderOptions {
+            queue_capacity: 16,
+            sync_interval: Duration::from_millis(500),
+        },
+    )
+    .unwrap();
+    let pushed = 1_000_000u64;
+    let start = handle.start_instant();
+    for k in 0..pushed {
+        handle.telemetry(
+            start + Duration::from_micros(k),
+            0,
+            &sample(k),
+            ReplyFlags(0),
+        );
+    }
+    let stats = handle.finish();
+    assert_eq!(stats.accepted + stats.dropped_full, pushed);
+    assert_eq!(stats.written, stats.accepted);
+    assert_eq!(stats.dropped_failed, 0);
+    assert!(
+        stats.dropped_full > 0,
+        "a 16-record queue cannot keep up with a million pushes"
+    );
+
+    let mut telemetry = 0u64;
+    let mut told = 0u64;
+    for path in &stats.files {
+        let rec = read_record(path).unwrap();
+        assert!(
+            rec.notes.iter().all(|n| n.contains("continues")),
+            "{:?}",
+            rec.notes
+        );
+        for r in &rec.records {
+            match r.body {
+                RecordBody::Telemetry { .. } => telemetry += 1,
+                RecordBody::Dropped { count } => told += count,
+                _ => {}
+            }
+        }
+    }
+    assert_eq!(telemetry, stats.written);
+    assert_eq!(told, stats.dropped_full, "every drop is told in the file");
+    assert_eq!(telemetry + told, pushed);
+}
+
+#[test]
+fn records_reach_the_disk_without_a_clean_stop() {
+    let dir = TempDir::new("crash");
+    let handle = Recorder::start(dir.path(), &servos(), RecordLimits::default()).unwrap();
+    let path = handle.path().unwrap();
+    for k in 0..100 {
+        handle.goal(1, Goal::Position(MmCenti(k)));
+    }
+    // Read the file while the writer still runs, as after a power cut.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let rec = loop {
+        let rec = read_record(&path).unwrap();
+        if rec.records.len() >= 100 || Instant::now() > deadline {
+            break rec;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(rec.records.len(), 100);
+    assert!(!rec.closed);
+    assert!(rec.notes.iter().any(|n| n.contains("no end record")));
+    let stats = handle.finish();
+    assert_eq!(stats.written, 100);
+    assert!(read_record(&path).unwrap().closed);
+}
+
+#[test]
+fn dropping_every_handle_closes_the_file() {
+    let dir = TempDir::new("drop");
+    let handle = Recorder::start(dir.path(), &servos(), RecordLimits::default()).unwrap();
+    let path = handle.path().unwrap();
+    let clone = handle.clone();
+    std::thread::spawn(move || clone.event(None, 6, "from another thread"))
+        .join()
+        .unwrap();
+    drop(handle);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let rec: Recording = loop {
+        let rec = read_record(&path).unwrap();
+        if rec.closed || Instant::now() > deadline {
+            break rec;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(rec.closed);
+    assert!(
+        matches!(&rec.records[0].body, RecordBody::Event { text, .. } if text == "from another thread")
+    );
+}
+
+#[test]
+fn impossible_servo_indices_are_counted_not_recorded() {
+    let dir = TempDir::new("idx");
+    let handle = Recorder::start(dir.path(), &servos(), RecordLimits::default()).unwrap();
+    handle.goal(255, Goal::Hold);
+    handle.goal(100_000, Goal::Hold);
+    handle.goal(1, Goal::Hold);
+    let stats = handle.finish();
+    assert_eq!(stats.written, 1);
+    assert_eq!(stats.dropped_failed, 2);
+    let rec = read_record(&stats.files[0]).unwrap();
+    assert_eq!(
+        rec.records
+            .iter()
+            .filter_map(|r| match r.body {
+                RecordBody::Dropped { count } => Some(count),
+                _ => None,
+            })
+            .sum::<u64>(),
+        2
+    );
+}
+
+#[test]
+fn more_than_255_servos_are_refused_with_a_reason() {
+    let dir = TempDir::new("many");
+    let many: Vec<RecordServo> = (0..256)
+        .map(|i| RecordServo::new(format!("s{i}"), "b", 1, 1))
+        .collect();
+    let e = Recorder::start(dir.path(), &many, RecordLimits::default()).unwrap_err();
+    assert!(e.to_string().contains("at most 255 servos"), "{e}");
+}
+
+#[test]
+fn file_names_are_the_utc_start_time_and_never_replace_a_file() {
+    let dir = TempDir::new("names");
+    let a = Recorder::start(dir.path(), &servos(), RecordLimits::default()).unwrap();
+    let b = Recorder::start(dir.path(), &servos(), RecordLimits::default()).unwrap();
+    let (pa, pb) = (a.path().unwrap(), b.path().unwrap());
+    assert_ne!(pa, pb);
+    let name = pa.file_name().unwrap().to_string_lossy().into_owned();
+    // 20261121T235959Z.lj9rec
+    assert_eq!(name.len(), 23, "{name}");
+    assert_eq!(&name[8..9], "T");
+    assert!(name.ends_with("Z.lj9rec"));
+    let year: i32 = name[..4].parse().unwrap();
+    assert!(year >= 2024);
+    a.finish();
+    b.finish();
+}
+
+/// Not a test of speed (nothing is asserted about it): prints how many records per second
+/// one writer thread takes, for the documentation. Run with
+/// `cargo test --release --test record_writer -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn writer_throughput() {
+    let dir = TempDir::new("speed");
+    let handle = Recorder::start_with(
+        dir.path(),
+        &servos(),
+        RecordLimits::default(),
+        RecorderOptions {
+            queue_capacity: 1 << 20,
+            sync_interval: Duration::from_millis(500),
+        },
+    )
+    .unwrap();
+    let n = 2_000_000u64;
+    let t0 = Instant::now();
+    let start = handle.start_instant();
+    for k in 0..n {
+        handle.telemetry(
+            start + Duration::from_micros(k * 10),
+            0,
+            &sample(k),
+            ReplyFlags(0),
+        );
+    }
+    let pushed = t0.elapsed();
+    let stats = handle.finish();
+    let all = t0.elapsed();
+    println!(
+        "{n} pushes in {pushed:?} ({:.0} ns each); {} written, {} dropped, {} bytes in {all:?}: \
+         {:.0} records/s, {:.1} bytes per telemetry record",
+        pushed.as_nanos() as f64 / n as f64,
+        stats.written,
+        stats.dropped(),
+        stats.bytes,
+        stats.written as f64 / all.as_secs_f64(),
+        stats.bytes as f64 / stats.written as f64
+    );
+}
