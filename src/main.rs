@@ -3,9 +3,9 @@
 
 use clap::{Parser, Subcommand};
 use lj9da_bridge::commission::cli::Commission;
+use lj9da_bridge::config::Config;
 use lj9da_bridge::deploy::DeployCommand;
 use lj9da_bridge::record::RecordCommand;
-use lj9da_bridge::config::Config;
 use lj9da_bridge::runtime;
 use lj9da_bridge::simulation::{self, SitlOptions};
 use std::path::{Path, PathBuf};

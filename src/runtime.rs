@@ -9,6 +9,7 @@ use crate::bus::{
     BusConfig, BusEvent, BusHandle, BusStatus, Health, ServoSetup, ShutdownForce, spawn_bus,
 };
 use crate::config::{Config, ExitAction};
+use crate::mavlink::reply_quality::{QualityChange, ReplyQuality};
 use crate::mavlink::{BridgeCore, BridgeEvent, LinkId, ServoEvent, ServoReport, ServoState};
 use crate::protocol::ServoId;
 use crate::record::{RecordHandle, RecordLimits, RecordServo, Recorder, StatusFeed};
@@ -168,22 +169,24 @@ fn bridge_event(cfg: &Config, buses: &Buses, bus: usize, event: &BusEvent) -> Op
             .iter()
             .position(|(b, i)| *b == bus && *i == id)
     });
+    // The temperature quoted with an alarm or error: the reading of the reply that raised it
+    // (at most a second old). The all-clear quotes none: after a power cycle the last reading
+    // can predate the restart.
     let celsius = || {
         let id = event.servo()?;
         let status = buses.handles.get(bus)?.status();
-        let t = status.servos.iter().find(|s| s.id == id)?.telemetry?;
-        Some(t.present_temperature.0)
+        let servo = status.servos.iter().find(|s| s.id == id)?;
+        let fresh = servo.telemetry_at?.elapsed() < std::time::Duration::from_secs(1);
+        fresh.then_some(servo.telemetry?.present_temperature.0)
     };
     let servo_event = match event {
         BusEvent::ServoLost { .. } => ServoEvent::Lost,
         BusEvent::ServoBack { .. } => ServoEvent::Back,
         BusEvent::TemperatureAlarm { on, .. } => ServoEvent::TemperatureAlarm {
             on: *on,
-            celsius: celsius().unwrap_or(0),
+            celsius: if *on { celsius() } else { None },
         },
-        BusEvent::TemperatureError { .. } => ServoEvent::TemperatureError {
-            celsius: celsius().unwrap_or(0),
-        },
+        BusEvent::TemperatureError { .. } => ServoEvent::TemperatureError { celsius: celsius() },
         BusEvent::Stalled { on, .. } => ServoEvent::Stalled { on: *on },
         BusEvent::WrongModel { found, .. } => ServoEvent::WrongModel { found: *found },
         BusEvent::FlashWriteError { .. } => ServoEvent::FlashWriteError,
@@ -235,14 +238,21 @@ fn start_record(cfg: &Config, dir: &std::path::Path) -> Option<RecordHandle> {
             Some(handle)
         }
         Err(e) => {
-            tracing::warn!("flight record disabled: cannot write in {}: {e}", dir.display());
+            tracing::warn!(
+                "flight record disabled: cannot write in {}: {e}",
+                dir.display()
+            );
             None
         }
     }
 }
 
 /// Run the bridge until `stop` turns true.
-pub async fn run(cfg: Config, opts: RunOptions, mut stop: watch::Receiver<bool>) -> Result<(), RunError> {
+pub async fn run(
+    cfg: Config,
+    opts: RunOptions,
+    mut stop: watch::Receiver<bool>,
+) -> Result<(), RunError> {
     let RunOptions {
         ports,
         view,
@@ -259,7 +269,9 @@ pub async fn run(cfg: Config, opts: RunOptions, mut stop: watch::Receiver<bool>)
     tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links open");
     let buses = Buses::spawn(&cfg, &ports);
     let mut core = BridgeCore::new(cfg.clone(), Instant::now());
-    let record = record_dir.filter(|_| cfg.record.enabled).and_then(|dir| start_record(&cfg, &dir));
+    let record = record_dir
+        .filter(|_| cfg.record.enabled)
+        .and_then(|dir| start_record(&cfg, &dir));
 
     let (msg_tx, mut msg_rx) = mpsc::channel::<(LinkId, MavHeader, MavMessage)>(1024);
     let mut readers = Vec::new();
@@ -286,7 +298,9 @@ pub async fn run(cfg: Config, opts: RunOptions, mut stop: watch::Receiver<bool>)
     for (i, bus) in buses.handles.iter().enumerate() {
         let mut events = bus.events();
         let tx = event_tx.clone();
-        let feed = record.clone().map(|r| StatusFeed::new(r, &RecordServo::from_config(&cfg)));
+        let feed = record
+            .clone()
+            .map(|r| StatusFeed::new(r, &RecordServo::from_config(&cfg)));
         let bus_name = bus.name().to_string();
         if let Some(mut feed) = feed.clone() {
             let mut status = bus.watch_status();
@@ -318,6 +332,11 @@ pub async fn run(cfg: Config, opts: RunOptions, mut stop: watch::Receiver<bool>)
     }
 
     let mut view_at = Instant::now();
+    let mut qualities: Vec<ReplyQuality> = buses
+        .handles
+        .iter()
+        .map(|_| ReplyQuality::default())
+        .collect();
     loop {
         let deadline = tokio::time::Instant::from_std(core.poll_timeout());
         tokio::select! {
@@ -335,8 +354,19 @@ pub async fn run(cfg: Config, opts: RunOptions, mut stop: watch::Receiver<bool>)
                 }
             }
             _ = tokio::time::sleep_until(deadline) => {
+                let now = Instant::now();
                 let (reports, _) = buses.reports(&cfg);
-                core.handle_timeout(Instant::now(), &reports);
+                core.handle_timeout(now, &reports);
+                for (bus, quality) in buses.handles.iter().zip(&mut qualities) {
+                    let name = bus.name().to_string();
+                    match quality.update(&bus.status(), now) {
+                        Some(QualityChange::Degraded { percent }) => {
+                            core.event(BridgeEvent::RepliesDegraded { bus: name, percent }, now);
+                        }
+                        Some(QualityChange::Recovered) => core.event(BridgeEvent::RepliesOk { bus: name }, now),
+                        None => {}
+                    }
+                }
             }
         }
         while let Some((servo, goal)) = core.poll_command() {
@@ -350,7 +380,11 @@ pub async fn run(cfg: Config, opts: RunOptions, mut stop: watch::Receiver<bool>)
         if let Some(header) = core.header() {
             while let Some(out) = core.poll_message() {
                 if let (Some(r), MavMessage::STATUSTEXT(t)) = (&record, &out.message) {
-                    r.event(None, t.severity as u8, t.text.to_str().unwrap_or("").to_string());
+                    r.event(
+                        None,
+                        t.severity as u8,
+                        t.text.to_str().unwrap_or("").to_string(),
+                    );
                 }
                 for (i, link) in links.iter().enumerate() {
                     if out.link.is_none_or(|l| l == i)

@@ -295,10 +295,21 @@ async fn an_overheating_servo_produces_one_warning_and_one_error() {
             _ => None,
         })
         .collect();
-    assert!(events.iter().any(|t| t.starts_with("rudder: temperature alarm")), "{events:?}");
-    assert!(events.iter().any(|t| t.starts_with("rudder: overheat")), "{events:?}");
+    assert!(
+        events
+            .iter()
+            .any(|t| t.starts_with("rudder: temperature alarm")),
+        "{events:?}"
+    );
+    assert!(
+        events.iter().any(|t| t.starts_with("rudder: overheat")),
+        "{events:?}"
+    );
     let rudder = &summary(&recording).servos[3];
-    assert!(rudder.temperature_alarms >= 1 && rudder.temperature_errors >= 1, "{rudder:?}");
+    assert!(
+        rudder.temperature_alarms >= 1 && rudder.temperature_errors >= 1,
+        "{rudder:?}"
+    );
 }
 
 /// SERVO_OUTPUT_RAW as MAVLink 1 from an autopilot played by the test: channels 9–16 (the

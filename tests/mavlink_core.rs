@@ -497,7 +497,7 @@ fn events_become_one_statustext_each() {
             servo: 0,
             event: ServoEvent::TemperatureAlarm {
                 on: true,
-                celsius: 76,
+                celsius: Some(76),
             },
         },
         t0,
@@ -505,7 +505,7 @@ fn events_become_one_statustext_each() {
     c.event(
         BridgeEvent::Servo {
             servo: 0,
-            event: ServoEvent::TemperatureError { celsius: 85 },
+            event: ServoEvent::TemperatureError { celsius: Some(85) },
         },
         t0,
     );

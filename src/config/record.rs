@@ -25,7 +25,10 @@ impl RecordSection {
 
     /// The record folder for a mapping file at `config_path`.
     pub fn dir_for(&self, config_path: Option<&Path>) -> PathBuf {
-        let base = config_path.and_then(Path::parent).map(Path::to_path_buf).unwrap_or_default();
+        let base = config_path
+            .and_then(Path::parent)
+            .map(Path::to_path_buf)
+            .unwrap_or_default();
         match &self.dir {
             Some(dir) if dir.is_absolute() => dir.clone(),
             Some(dir) => base.join(dir),
@@ -47,7 +50,11 @@ impl RecordSection {
                     return Err(scope.error_on(
                         v,
                         "max_total_mb",
-                        format!("{mb} is outside {}–{} (MiB)", Self::MIN_TOTAL_MB, Self::MAX_TOTAL_MB),
+                        format!(
+                            "{mb} is outside {}–{} (MiB)",
+                            Self::MIN_TOTAL_MB,
+                            Self::MAX_TOTAL_MB
+                        ),
                     ));
                 }
                 mb as u64
@@ -56,7 +63,11 @@ impl RecordSection {
         let dir = match &raw.dir {
             None => None,
             Some(d) if d.get_ref().trim().is_empty() => {
-                return Err(scope.error_on(d, "dir", "is empty; leave the key out for records/ beside this file"));
+                return Err(scope.error_on(
+                    d,
+                    "dir",
+                    "is empty; leave the key out for records/ beside this file",
+                ));
             }
             Some(d) => Some(PathBuf::from(d.get_ref())),
         };
@@ -85,17 +96,26 @@ mod tests {
     #[test]
     fn the_record_folder_is_beside_the_mapping_file_unless_given() {
         let r = RecordSection::default();
-        assert_eq!(r.dir_for(Some(Path::new("/etc/lj9da/plane.toml"))), PathBuf::from("/etc/lj9da/records"));
+        assert_eq!(
+            r.dir_for(Some(Path::new("/etc/lj9da/plane.toml"))),
+            PathBuf::from("/etc/lj9da/records")
+        );
         let r = RecordSection {
             dir: Some("logs".into()),
             ..RecordSection::default()
         };
-        assert_eq!(r.dir_for(Some(Path::new("/etc/lj9da/plane.toml"))), PathBuf::from("/etc/lj9da/logs"));
+        assert_eq!(
+            r.dir_for(Some(Path::new("/etc/lj9da/plane.toml"))),
+            PathBuf::from("/etc/lj9da/logs")
+        );
         let r = RecordSection {
             dir: Some("/var/lib/lj9da-bridge/records".into()),
             ..RecordSection::default()
         };
-        assert_eq!(r.dir_for(Some(Path::new("plane.toml"))), PathBuf::from("/var/lib/lj9da-bridge/records"));
+        assert_eq!(
+            r.dir_for(Some(Path::new("plane.toml"))),
+            PathBuf::from("/var/lib/lj9da-bridge/records")
+        );
         assert_eq!(RecordSection::default().max_total_bytes(), 512 << 20);
     }
 }

@@ -51,11 +51,12 @@ pub enum ServoEvent {
     Back,
     TemperatureAlarm {
         on: bool,
-        celsius: i16,
+        /// The temperature of a reading taken around the event; `None` when there is none.
+        celsius: Option<i16>,
     },
     /// The servo hit its temperature limit and switched force off; it needs a power cycle.
     TemperatureError {
-        celsius: i16,
+        celsius: Option<i16>,
     },
     Stalled {
         on: bool,
@@ -69,9 +70,26 @@ pub enum ServoEvent {
 /// Something that happened to the bridge as a whole.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub enum BridgeEvent {
-    Servo { servo: usize, event: ServoEvent },
-    FailsafeEntered { timeout_ms: u32 },
+    Servo {
+        servo: usize,
+        event: ServoEvent,
+    },
+    FailsafeEntered {
+        timeout_ms: u32,
+    },
     FailsafeLeft,
-    PortLost { bus: String },
-    PortBack { bus: String },
+    PortLost {
+        bus: String,
+    },
+    PortBack {
+        bus: String,
+    },
+    /// More than 10 % of the requests to answering servos got a bad or no reply.
+    RepliesDegraded {
+        bus: String,
+        percent: u8,
+    },
+    RepliesOk {
+        bus: String,
+    },
 }

@@ -19,15 +19,15 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
             ServoEvent::Back => (MAV_SEVERITY_NOTICE, format!("{servo_name}: servo back")),
             ServoEvent::TemperatureAlarm { on: true, celsius } => (
                 MAV_SEVERITY_WARNING,
-                format!("{servo_name}: temperature alarm {celsius}C"),
+                format!("{servo_name}: temperature alarm{}", degrees(*celsius)),
             ),
             ServoEvent::TemperatureAlarm { on: false, celsius } => (
                 MAV_SEVERITY_NOTICE,
-                format!("{servo_name}: temperature ok {celsius}C"),
+                format!("{servo_name}: temperature ok{}", degrees(*celsius)),
             ),
             ServoEvent::TemperatureError { celsius } => (
                 MAV_SEVERITY_CRITICAL,
-                format!("{servo_name}: overheat {celsius}C, force off"),
+                format!("{servo_name}: overheat{}, force off", degrees(*celsius)),
             ),
             ServoEvent::Stalled { on: true } => {
                 (MAV_SEVERITY_ERROR, format!("{servo_name}: stalled"))
@@ -49,6 +49,13 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
             format!("LJ9DA failsafe: no outputs for {timeout_ms} ms"),
         ),
         BridgeEvent::FailsafeLeft => (MAV_SEVERITY_NOTICE, "LJ9DA failsafe cleared".to_string()),
+        BridgeEvent::RepliesDegraded { bus, percent } => (
+            MAV_SEVERITY_WARNING,
+            format!("LJ9DA bus {bus}: {percent}% replies bad"),
+        ),
+        BridgeEvent::RepliesOk { bus } => {
+            (MAV_SEVERITY_NOTICE, format!("LJ9DA bus {bus}: replies ok"))
+        }
         BridgeEvent::PortLost { bus } => {
             (MAV_SEVERITY_CRITICAL, format!("LJ9DA bus {bus}: port lost"))
         }
@@ -57,6 +64,11 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
         }
     };
     (severity, truncate(text))
+}
+
+/// " 76C", or nothing when no fresh reading is at hand.
+fn degrees(celsius: Option<i16>) -> String {
+    celsius.map(|c| format!(" {c}C")).unwrap_or_default()
 }
 
 fn truncate(mut text: String) -> String {
@@ -86,6 +98,7 @@ fn kind(event: &BridgeEvent) -> (Option<usize>, u8) {
         ),
         BridgeEvent::FailsafeEntered { .. } | BridgeEvent::FailsafeLeft => (None, 10),
         BridgeEvent::PortLost { .. } | BridgeEvent::PortBack { .. } => (None, 11),
+        BridgeEvent::RepliesDegraded { .. } | BridgeEvent::RepliesOk { .. } => (None, 12),
     }
 }
 
@@ -199,7 +212,10 @@ mod tests {
     fn alarm(on: bool) -> BridgeEvent {
         BridgeEvent::Servo {
             servo: 0,
-            event: ServoEvent::TemperatureAlarm { on, celsius: 76 },
+            event: ServoEvent::TemperatureAlarm {
+                on,
+                celsius: Some(76),
+            },
         }
     }
 
@@ -210,7 +226,7 @@ mod tests {
         assert_eq!(
             sev(&BridgeEvent::Servo {
                 servo: 0,
-                event: ServoEvent::TemperatureError { celsius: 85 }
+                event: ServoEvent::TemperatureError { celsius: Some(85) }
             }),
             MavSeverity::MAV_SEVERITY_CRITICAL
         );
@@ -240,7 +256,7 @@ mod tests {
         let (_, t) = describe(
             &BridgeEvent::Servo {
                 servo: 0,
-                event: ServoEvent::TemperatureError { celsius: 85 },
+                event: ServoEvent::TemperatureError { celsius: Some(85) },
             },
             long_name,
         );
@@ -286,13 +302,13 @@ mod tests {
             servo: 1,
             event: ServoEvent::TemperatureAlarm {
                 on: true,
-                celsius: 80,
+                celsius: Some(80),
             },
         };
         assert!(th.admit(&other, t0).is_some());
         let err = BridgeEvent::Servo {
             servo: 0,
-            event: ServoEvent::TemperatureError { celsius: 85 },
+            event: ServoEvent::TemperatureError { celsius: Some(85) },
         };
         assert!(th.admit(&err, t0).is_some());
     }

@@ -9,8 +9,9 @@ use lj9da_sim::{SimBus, SimConfig};
 use mavlink::dialects::common::MavMessage;
 use mavlink::{AsyncMavConnection, MavHeader};
 use std::collections::HashMap;
-use std::path::PathBuf;
 use std::net::UdpSocket;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
@@ -24,13 +25,33 @@ pub fn free_udp_port() -> u16 {
         .port()
 }
 
-/// Everything a ground station heard, with the time it arrived.
+/// Everything a ground station heard, with the time it arrived (or, with a filter, what the
+/// filter kept; every message is counted either way).
 #[derive(Clone, Default)]
-pub struct Heard(Arc<Mutex<Vec<(Instant, MavHeader, MavMessage)>>>);
+pub struct Heard(
+    Arc<Mutex<Vec<(Instant, MavHeader, MavMessage)>>>,
+    Arc<AtomicU64>,
+);
 
 impl Heard {
     pub fn all(&self) -> Vec<(Instant, MavHeader, MavMessage)> {
         self.0.lock().unwrap().clone()
+    }
+
+    /// How many messages arrived in all, kept or not.
+    pub fn count(&self) -> u64 {
+        self.1.load(Ordering::Relaxed)
+    }
+
+    /// The kept messages that arrived at or after `since`.
+    pub fn since(&self, since: Instant) -> Vec<(Instant, MavHeader, MavMessage)> {
+        self.0
+            .lock()
+            .unwrap()
+            .iter()
+            .filter(|(t, _, _)| *t >= since)
+            .cloned()
+            .collect()
     }
 
     /// Wait until `pred` holds for what was heard, or panic after `timeout` with `what`.
@@ -68,6 +89,15 @@ impl Heard {
 
 /// A ground station: a MAVLink `udpin` socket that records everything it hears.
 pub async fn ground_station(port: u16) -> (Heard, JoinHandle<()>) {
+    ground_station_keeping(port, None).await
+}
+
+/// A ground station that keeps only the messages `keep` accepts (all when `None`) and counts
+/// every message: a long run then holds no more than it needs.
+pub async fn ground_station_keeping(
+    port: u16,
+    keep: Option<fn(&MavMessage) -> bool>,
+) -> (Heard, JoinHandle<()>) {
     let mut conn = mavlink::connect_async::<MavMessage>(&format!("udpin:127.0.0.1:{port}"))
         .await
         .unwrap();
@@ -76,10 +106,32 @@ pub async fn ground_station(port: u16) -> (Heard, JoinHandle<()>) {
     let h = heard.clone();
     let task = tokio::spawn(async move {
         while let Ok((header, msg)) = conn.recv().await {
-            h.0.lock().unwrap().push((Instant::now(), header, msg));
+            h.1.fetch_add(1, Ordering::Relaxed);
+            if keep.is_none_or(|keep| keep(&msg)) {
+                h.0.lock().unwrap().push((Instant::now(), header, msg));
+            }
         }
     });
     (heard, task)
+}
+
+/// How a chain is started (see [`Chain::start_opts`]); the default is [`Chain::start`]'s with
+/// the test playing the autopilot.
+#[derive(Clone, Default)]
+pub struct ChainOptions {
+    /// Run the simulated autopilot (else the test plays it on `udpout:127.0.0.1:<autopilot_port>`).
+    pub autopilot: bool,
+    /// Send the bridge's telemetry to this port (for an outside ground station); `gcs` then
+    /// hears nothing.
+    pub gcs_port: Option<u16>,
+    /// Give each simulated bus a stable symlink (in a fresh folder under the target's temporary
+    /// directory) and hand the bridge that path, so that the serial device can disappear
+    /// (`disconnect_port`) and reappear (`reconnect_port`) and the bridge can reopen it.
+    pub stable_links: bool,
+    /// The ground station keeps only the messages this accepts (it counts all of them).
+    pub gcs_keep: Option<fn(&MavMessage) -> bool>,
+    /// The simulators' fault seed (the same seed replays the same corrupted and dropped replies).
+    pub sim_seed: Option<u64>,
 }
 
 pub struct Chain {
@@ -90,6 +142,8 @@ pub struct Chain {
     pub autopilot_port: u16,
     /// The folder of this run's flight record.
     pub record_dir: PathBuf,
+    /// The folder of the serial devices' symlinks ([`ChainOptions::stable_links`]).
+    pub link_dir: Option<PathBuf>,
     stop: watch::Sender<bool>,
     bridge: Option<JoinHandle<Result<(), runtime::RunError>>>,
     tasks: Vec<JoinHandle<()>>,
@@ -105,15 +159,51 @@ impl Chain {
     /// As [`Chain::start`]; with `gcs_port` the bridge's telemetry goes to that port (for an
     /// outside ground station) and `gcs` hears nothing.
     pub async fn start_with(mapping: &str, autopilot: bool, gcs_port: Option<u16>) -> Chain {
+        Self::start_opts(
+            mapping,
+            ChainOptions {
+                autopilot,
+                gcs_port,
+                ..ChainOptions::default()
+            },
+        )
+        .await
+    }
+
+    /// Start the chain for `mapping` as `opts` say.
+    pub async fn start_opts(mapping: &str, opts: ChainOptions) -> Chain {
+        let ChainOptions {
+            autopilot,
+            gcs_port,
+            stable_links,
+            gcs_keep,
+            sim_seed,
+        } = opts;
         let mut cfg = Config::parse(mapping, "test mapping").expect("test mapping is valid");
         let mut sims = Vec::new();
         let mut ports = HashMap::new();
+        let link_dir = stable_links.then(|| {
+            static NEXT: AtomicU64 = AtomicU64::new(0);
+            let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!(
+                "links-{}-{}",
+                std::process::id(),
+                NEXT.fetch_add(1, Ordering::Relaxed)
+            ));
+            let _ = std::fs::remove_dir_all(&dir);
+            std::fs::create_dir_all(&dir).expect("folder for the serial device links");
+            dir
+        });
         for bus in &cfg.buses {
             let ids = cfg.servos_on(&bus.name).map(|s| s.id.get()).collect();
+            let defaults = SimConfig::default();
             let sim = SimBus::spawn_pty(SimConfig {
                 ids,
                 baud: bus.baud.bits_per_second(),
-                ..SimConfig::default()
+                link: link_dir
+                    .as_ref()
+                    .map(|d| d.join(format!("bus-{}", bus.name))),
+                seed: sim_seed.unwrap_or(defaults.seed),
+                ..defaults
             })
             .expect("simulated servos start");
             ports.insert(bus.name.clone(), sim.path());
@@ -129,12 +219,13 @@ impl Chain {
             None => {
                 let port = free_udp_port();
                 cfg.mavlink.gcs = Some(format!("udpout:127.0.0.1:{port}"));
-                ground_station(port).await
+                ground_station_keeping(port, gcs_keep).await
             }
         };
         let (stop, stop_rx) = watch::channel(false);
         let (view_tx, view) = watch::channel(BridgeView::default());
-        let record_dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("records-{autopilot_port}"));
+        let record_dir =
+            PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("records-{autopilot_port}"));
         let _ = std::fs::remove_dir_all(&record_dir);
         let opts = runtime::RunOptions {
             ports,
@@ -168,6 +259,7 @@ impl Chain {
             view,
             autopilot_port,
             record_dir,
+            link_dir,
             stop,
             bridge: Some(bridge),
             tasks,
@@ -195,6 +287,11 @@ impl Chain {
         }
     }
 
+    /// Whether the bridge task is still running (it ends only on `stop`, an error or a panic).
+    pub fn bridge_running(&self) -> bool {
+        self.bridge.as_ref().is_some_and(|b| !b.is_finished())
+    }
+
     pub async fn stop(mut self) {
         let _ = self.stop.send(true);
         if let Some(b) = self.bridge.take() {
@@ -205,6 +302,9 @@ impl Chain {
         }
         for s in self.sims.drain(..) {
             s.shutdown();
+        }
+        if let Some(dir) = self.link_dir.take() {
+            let _ = std::fs::remove_dir_all(dir);
         }
     }
 }

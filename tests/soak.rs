@@ -1,0 +1,1495 @@
+//! Fault soak: the whole chain (simulated servos on a real pty behind a stable symlink, the
+//! bridge in this process, the test playing the autopilot over UDP, a ground station) while
+//! faults are injected in turn and together: corrupted and dropped replies, an echoing
+//! adapter, a servo unplugged and back, a stalled rod, overheating, the autopilot stream
+//! stopping and resuming, MAVLink garbage and a flood, the serial device disappearing and
+//! reappearing, and several of them at once.
+//!
+//! Asserted after every fault: no panic anywhere in the process, every servo online again
+//! within [`RECOVERY`] of the fault's end, every goal the autopilot sends afterwards reaching
+//! its servo (a long packet the servo acted on, and its goal register), the fault announced
+//! to the ground station with its exact STATUSTEXT and severity (and nothing worse than a
+//! NOTICE that the fault does not explain), and the process's memory flat.
+//!
+//! A missing STATUSTEXT, a servo not back or a goal not reaching its servo fails at once, with
+//! the bridge's view and every STATUSTEXT heard. A wrong or late STATUSTEXT is logged as a
+//! violation and the soak goes on, failing at its end with all of them.
+//!
+//! One round takes about two minutes. `LJ9DA_SOAK_ROUNDS=n` runs n rounds;
+//! `LJ9DA_SOAK_SECONDS=s` keeps running rounds until s seconds have passed.
+
+mod common;
+
+use common::{Chain, ChainOptions, Heard};
+use lj9da_bridge::bus::Health;
+use lj9da_bridge::runtime::BridgeView;
+use lj9da_sim::fault::XorShift64;
+use lj9da_sim::{BusEvent, Fault, FaultKind, Force, SimHandle};
+use mavlink::dialects::common::*;
+use mavlink::{AsyncMavConnection, MavHeader, MavlinkVersion};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::mpsc::Receiver;
+use std::time::{Duration, Instant};
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+
+const MAPPING: &str = r#"
+[mavlink]
+connection = "udpin:127.0.0.1:14560"
+failsafe_timeout_ms = 400
+output_rate_hz = 50
+
+[telemetry]
+rate_hz = 10
+
+[[bus]]
+name = "wing"
+port = "sim"
+baud = 115200
+# Two cores shared with other work: allow for a scheduler's hiccup.
+turnaround_ms = 20
+
+[[servo]]
+name = "aileron_left"
+label = "ail_l"
+bus = "wing"
+id = 1
+channel = 1
+
+[[servo]]
+name = "aileron_right"
+label = "ail_r"
+bus = "wing"
+id = 2
+channel = 2
+
+[[servo]]
+name = "elevator"
+label = "elev"
+bus = "wing"
+id = 3
+channel = 3
+failsafe = 22.0
+
+[[servo]]
+name = "rudder"
+bus = "wing"
+id = 4
+channel = 4
+"#;
+
+const NAMES: [&str; 4] = ["aileron_left", "aileron_right", "elevator", "rudder"];
+/// The elevator's failsafe position, 0.01 mm (outside the ±15 mm the steps use).
+const ELEVATOR_FAILSAFE: i16 = 2200;
+/// What the garbage's unknown senders ask for, 0.01 mm: no servo may ever get it.
+const FOREIGN_GOAL: i16 = 2000;
+
+/// Every servo online again within this of its fault's end.
+const RECOVERY: Duration = Duration::from_secs(8);
+/// Each goal sent after recovery on the wire and in the servo within this.
+const STEP_BOUND: Duration = Duration::from_millis(500);
+/// Goals sent while replies are being corrupted or dropped: within this.
+const STEP_BOUND_DEGRADED: Duration = Duration::from_secs(2);
+const STEPS: usize = 3;
+/// The growth of the process's resident memory allowed from after warm-up to the end.
+const RSS_GROWTH_LIMIT_KIB: u64 = 8 * 1024;
+
+const S: fn(u64) -> Duration = Duration::from_secs;
+const MS: fn(u64) -> Duration = Duration::from_millis;
+
+/// Panics anywhere in the process (bridge tasks, bus drivers, the simulator's thread).
+static PANICS: AtomicUsize = AtomicUsize::new(0);
+
+fn count_panics() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        PANICS.fetch_add(1, Ordering::SeqCst);
+        default(info);
+    }));
+}
+
+fn env_number(name: &str) -> Option<u64> {
+    std::env::var(name).ok().and_then(|v| v.trim().parse().ok())
+}
+
+/// This process's resident set, KiB.
+fn rss_kib() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmRSS:"))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|v| v.parse().ok())
+        })
+        .unwrap_or(0)
+}
+
+/// The PWM value (µs) for a position (0.01 mm, whole mm) under the default 920/1520/2120 law.
+fn pwm(centi: i16) -> u16 {
+    (1520 + i32::from(centi) * 24 / 100) as u16
+}
+
+/// The goals (0.01 mm) of step `n`: whole millimetres within ±15, each servo's differing
+/// from its goal of step `n - 1` by at least 7 mm.
+fn goals_of(n: u32) -> [i16; 4] {
+    std::array::from_fn(|i| (((n * 7 + i as u32 * 5) % 31) as i16 - 15) * 100)
+}
+
+fn all_online(view: &BridgeView) -> bool {
+    view.servos.len() == 4 && view.servos.iter().all(|s| s.health == Health::Online)
+}
+
+fn healths(view: &BridgeView) -> Vec<Health> {
+    view.servos.iter().map(|s| s.health).collect()
+}
+
+/// A STATUSTEXT without the " (+N)" the flood guard appends when it folded repeats.
+fn base_text(text: &str) -> &str {
+    if let Some(i) = text.rfind(" (+")
+        && text.ends_with(')')
+        && text[i + 3..text.len() - 1]
+            .chars()
+            .all(|c| c.is_ascii_digit())
+    {
+        return &text[..i];
+    }
+    text
+}
+
+/// The STATUSTEXTs heard at or after `since`, with their arrival.
+fn texts_since(gcs: &Heard, since: Instant) -> Vec<(Instant, MavSeverity, String)> {
+    gcs.since(since)
+        .into_iter()
+        .filter_map(|(t, _, m)| match m {
+            MavMessage::STATUSTEXT(s) => Some((
+                t,
+                s.severity,
+                s.text.to_str().unwrap_or("<not UTF-8>").to_string(),
+            )),
+            _ => None,
+        })
+        .collect()
+}
+
+fn short_severity(s: MavSeverity) -> &'static str {
+    match s {
+        MavSeverity::MAV_SEVERITY_EMERGENCY => "EMERGENCY",
+        MavSeverity::MAV_SEVERITY_ALERT => "ALERT",
+        MavSeverity::MAV_SEVERITY_CRITICAL => "CRITICAL",
+        MavSeverity::MAV_SEVERITY_ERROR => "ERROR",
+        MavSeverity::MAV_SEVERITY_WARNING => "WARNING",
+        MavSeverity::MAV_SEVERITY_NOTICE => "NOTICE",
+        MavSeverity::MAV_SEVERITY_INFO => "INFO",
+        MavSeverity::MAV_SEVERITY_DEBUG => "DEBUG",
+    }
+}
+
+fn is_number(s: &str) -> bool {
+    let s = s.strip_prefix('-').unwrap_or(s);
+    !s.is_empty() && s.chars().all(|c| c.is_ascii_digit())
+}
+
+/// "<name>: temperature alarm NNC"
+fn temperature_alarm(name: &'static str) -> impl Fn(&str) -> bool {
+    move |t| {
+        t.strip_prefix(name)
+            .and_then(|t| t.strip_prefix(": temperature alarm "))
+            .and_then(|t| t.strip_suffix('C'))
+            .is_some_and(is_number)
+    }
+}
+
+/// "<name>: temperature ok NNC", or "<name>: temperature ok" when the bridge has no reading
+/// taken after the event (e.g. right after a power cycle).
+fn temperature_ok(name: &'static str) -> impl Fn(&str) -> bool {
+    move |t| match t.strip_prefix(name).and_then(|t| t.strip_prefix(": temperature ok")) {
+        Some("") => true,
+        Some(rest) => rest.strip_prefix(' ').and_then(|t| t.strip_suffix('C')).is_some_and(is_number),
+        None => false,
+    }
+}
+
+/// "<name>: overheat NNC, force off"
+fn overheat(name: &'static str) -> impl Fn(&str) -> bool {
+    move |t| {
+        t.strip_prefix(name)
+            .and_then(|t| t.strip_prefix(": overheat "))
+            .and_then(|t| t.strip_suffix("C, force off"))
+            .is_some_and(is_number)
+    }
+}
+
+/// "LJ9DA bus wing: N% replies bad"
+fn replies_bad(t: &str) -> bool {
+    t.strip_prefix("LJ9DA bus wing: ")
+        .and_then(|t| t.strip_suffix("% replies bad"))
+        .is_some_and(|n| n.parse::<u8>().is_ok_and(|n| (10..=100).contains(&n)))
+}
+
+fn exactly(expected: String) -> impl Fn(&str) -> bool {
+    move |t| t == expected
+}
+
+/// Wait until `cond` holds, at most `timeout`; on failure panic with `what`, the bridge's view
+/// and every STATUSTEXT heard so far. Returns how long it took.
+async fn wait_until(
+    chain: &Chain,
+    what: &str,
+    timeout: Duration,
+    mut cond: impl FnMut() -> bool,
+) -> Duration {
+    let start = Instant::now();
+    loop {
+        if cond() {
+            return start.elapsed();
+        }
+        if start.elapsed() > timeout {
+            let texts: Vec<String> = chain
+                .gcs
+                .statustexts()
+                .into_iter()
+                .map(|(s, t)| format!("{} {t}", short_severity(s)))
+                .collect();
+            panic!(
+                "timed out after {timeout:?} waiting for {what}\nbridge view: {:#?}\nSTATUSTEXTs heard: {texts:#?}",
+                *chain.view.borrow()
+            );
+        }
+        tokio::time::sleep(MS(20)).await;
+    }
+}
+
+/// Wait for a STATUSTEXT heard at or after `since` that `matches`, and check its severity.
+/// Returns when it arrived, counted from `since`.
+async fn expect_text(
+    chain: &Chain,
+    since: Instant,
+    severity: MavSeverity,
+    what: &str,
+    timeout: Duration,
+    matches: impl Fn(&str) -> bool,
+) -> Duration {
+    let find = || {
+        texts_since(&chain.gcs, since)
+            .into_iter()
+            .find(|(_, _, t)| matches(base_text(t)))
+    };
+    wait_until(
+        chain,
+        &format!("STATUSTEXT {what:?}"),
+        timeout.saturating_sub(since.elapsed()),
+        || find().is_some(),
+    )
+    .await;
+    let (at, sev, text) = find().expect("found above");
+    assert_eq!(
+        sev, severity,
+        "STATUSTEXT {text:?} has severity {sev:?}, expected {severity:?}"
+    );
+    at.saturating_duration_since(since)
+}
+
+/// The autopilot, played by the test: HEARTBEAT at 1 Hz and SERVO_OUTPUT_RAW at 50 Hz (and at
+/// once when the goals change) from system 1, component 1.
+struct Autopilot {
+    conn: Arc<mavlink::AsyncConnection<MavMessage>>,
+    goals: watch::Sender<[i16; 4]>,
+    paused: Arc<AtomicBool>,
+    sent: Arc<AtomicU64>,
+    tasks: Vec<JoinHandle<()>>,
+}
+
+const AUTOPILOT: MavHeader = MavHeader {
+    system_id: 1,
+    component_id: 1,
+    sequence: 0,
+};
+
+fn heartbeat(autopilot: MavAutopilot) -> MavMessage {
+    MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        custom_mode: 0,
+        mavtype: MavType::MAV_TYPE_FIXED_WING,
+        autopilot,
+        base_mode: MavModeFlag::empty(),
+        system_status: MavState::MAV_STATE_ACTIVE,
+        mavlink_version: 3,
+    })
+}
+
+fn outputs(goals: [i16; 4]) -> MavMessage {
+    MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
+        servo1_raw: pwm(goals[0]),
+        servo2_raw: pwm(goals[1]),
+        servo3_raw: pwm(goals[2]),
+        servo4_raw: pwm(goals[3]),
+        ..Default::default()
+    })
+}
+
+impl Autopilot {
+    async fn start(port: u16, goals: [i16; 4]) -> Autopilot {
+        let conn = Arc::new(
+            mavlink::connect_async::<MavMessage>(&format!("udpout:127.0.0.1:{port}"))
+                .await
+                .expect("autopilot socket"),
+        );
+        let (goals, mut goals_rx) = watch::channel(goals);
+        let paused = Arc::new(AtomicBool::new(false));
+        let sent = Arc::new(AtomicU64::new(0));
+        let (c, p, n) = (conn.clone(), paused.clone(), sent.clone());
+        let sender = tokio::spawn(async move {
+            let mut tick = tokio::time::interval(MS(20));
+            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+            let mut next_heartbeat = Instant::now();
+            loop {
+                tokio::select! {
+                    _ = tick.tick() => {}
+                    changed = goals_rx.changed() => {
+                        if changed.is_err() {
+                            return;
+                        }
+                    }
+                }
+                if Instant::now() >= next_heartbeat {
+                    next_heartbeat += S(1);
+                    let _ = c
+                        .send(
+                            &AUTOPILOT,
+                            &heartbeat(MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA),
+                        )
+                        .await;
+                }
+                if !p.load(Ordering::SeqCst) {
+                    let g = *goals_rx.borrow_and_update();
+                    if c.send(&AUTOPILOT, &outputs(g)).await.is_ok() {
+                        n.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+            }
+        });
+        // What the bridge sends the autopilot (stream requests, telemetry) is read and dropped.
+        let c = conn.clone();
+        let drain = tokio::spawn(async move {
+            loop {
+                if c.recv().await.is_err() {
+                    tokio::time::sleep(MS(10)).await;
+                }
+            }
+        });
+        Autopilot {
+            conn,
+            goals,
+            paused,
+            sent,
+            tasks: vec![sender, drain],
+        }
+    }
+
+    fn set(&self, goals: [i16; 4]) {
+        self.goals.send_replace(goals);
+    }
+
+    fn pause(&self, paused: bool) {
+        self.paused.store(paused, Ordering::SeqCst);
+    }
+}
+
+impl Drop for Autopilot {
+    fn drop(&mut self) {
+        for t in &self.tasks {
+            t.abort();
+        }
+    }
+}
+
+/// What one phase did, for the log.
+struct PhaseLog {
+    name: String,
+    start: Instant,
+    duration: Duration,
+    recovery: Option<Duration>,
+    texts: Vec<(Instant, MavSeverity, String)>,
+    notes: Vec<String>,
+}
+
+struct Soak {
+    chain: Chain,
+    sim: SimHandle,
+    ap: Autopilot,
+    started: Instant,
+    /// The step counter behind [`goals_of`].
+    n: u32,
+    goals: [i16; 4],
+    log: Vec<PhaseLog>,
+    rss: Vec<(String, u64)>,
+    step_latencies: Vec<Duration>,
+    round: u64,
+    /// Wrong STATUSTEXTs: the soak goes on and fails at the end with all of them.
+    violations: Vec<String>,
+}
+
+impl Soak {
+    fn name_of(&self, phase: &str) -> String {
+        format!("r{} {phase}", self.round)
+    }
+
+    /// Send the next goals and wait until each servo acted on a long packet carrying its goal
+    /// and holds it in its goal register.
+    async fn step(&mut self, bound: Duration) -> Duration {
+        self.n += 1;
+        let goals = goals_of(self.n);
+        self.send_and_check(goals, bound, "step").await
+    }
+
+    async fn send_and_check(&mut self, goals: [i16; 4], bound: Duration, what: &str) -> Duration {
+        let events = self.sim.subscribe();
+        let start = Instant::now();
+        self.goals = goals;
+        self.ap.set(goals);
+        let took = self.reached(&events, goals, start, bound, what).await;
+        self.step_latencies.push(took);
+        took
+    }
+
+    /// Wait until `goals` reached every servo (see [`Soak::step`]).
+    async fn reached(
+        &self,
+        events: &Receiver<BusEvent>,
+        goals: [i16; 4],
+        start: Instant,
+        bound: Duration,
+        what: &str,
+    ) -> Duration {
+        let mut missing: Vec<(u8, i16)> = (1..=4u8).zip(goals).collect();
+        loop {
+            while let Ok(event) = events.try_recv() {
+                if let BusEvent::Packet(p) = event
+                    && p.packet.is_long()
+                {
+                    for (id, goal) in p.packet.goal_positions() {
+                        if p.acted.contains(&id) {
+                            missing.retain(|m| *m != (id, goal));
+                        }
+                    }
+                }
+            }
+            let registers: Vec<i16> = (1..=4u8)
+                .map(|id| {
+                    self.sim
+                        .snapshot(id)
+                        .map_or(i16::MIN, |s| (s.goal_mm * 100.0).round() as i16)
+                })
+                .collect();
+            if missing.is_empty() && registers == goals {
+                return start.elapsed();
+            }
+            if start.elapsed() > bound {
+                panic!(
+                    "{what}: goals {goals:?} (0.01 mm) not on the servos within {bound:?}: no long packet \
+                     acted on for (id, goal) {missing:?}; goal registers {registers:?}\nhealth: {:?}\n\
+                     snapshots: {:#?}",
+                    healths(&self.chain.view.borrow()),
+                    self.sim.snapshots()
+                );
+            }
+            tokio::time::sleep(MS(5)).await;
+        }
+    }
+
+    async fn steps(&mut self, bound: Duration) {
+        for _ in 0..STEPS {
+            self.step(bound).await;
+        }
+    }
+
+    /// Every servo online again; returns how long that took.
+    async fn all_online(&self, what: &str) -> Duration {
+        let view = self.chain.view.clone();
+        wait_until(&self.chain, what, RECOVERY, || all_online(&view.borrow())).await
+    }
+
+    fn sample_rss(&mut self, label: String) {
+        self.rss.push((label, rss_kib()));
+    }
+
+    /// Close a phase: no panic so far, the bridge still running, nothing worse than a NOTICE
+    /// heard that the phase does not explain; log it and sample the memory.
+    fn finish(
+        &mut self,
+        name: String,
+        start: Instant,
+        recovery: Option<Duration>,
+        explained: &[&dyn Fn(&str) -> bool],
+        notes: Vec<String>,
+    ) {
+        assert_eq!(PANICS.load(Ordering::SeqCst), 0, "a panic during {name}");
+        assert!(
+            self.chain.bridge_running(),
+            "the bridge stopped during {name}"
+        );
+        let texts = texts_since(&self.chain.gcs, start);
+        let unexplained: Vec<_> = texts
+            .iter()
+            .filter(|(_, s, t)| {
+                (*s as u32) <= MavSeverity::MAV_SEVERITY_WARNING as u32
+                    && !explained.iter().any(|e| e(base_text(t)))
+            })
+            .map(|(_, s, t)| format!("{} {t}", short_severity(*s)))
+            .collect();
+        let log = PhaseLog {
+            name: name.clone(),
+            start,
+            duration: start.elapsed(),
+            recovery,
+            texts,
+            notes,
+        };
+        print_phase(&log, self.started);
+        self.log.push(log);
+        self.sample_rss(name.clone());
+        if !unexplained.is_empty() {
+            self.violation(format!(
+                "{name}: STATUSTEXTs the fault does not explain: {unexplained:?}"
+            ));
+        }
+    }
+
+    /// Reply faults (≥ 15 % of the requests bad) are judged over 2 s windows: announced within
+    /// three of them.
+    fn detected_in_time(&mut self, name: &str, after: Duration) {
+        if after > S(6) {
+            self.violation(format!(
+                "{name}: 'replies bad' only {:.2} s after the reply faults began (expected within 6 s)",
+                after.as_secs_f64()
+            ));
+        }
+    }
+
+    /// A wrong STATUSTEXT: logged now, the soak fails at its end.
+    fn violation(&mut self, what: String) {
+        println!("[soak] VIOLATION: {what}");
+        self.violations.push(what);
+    }
+
+    /// After reply faults injected at `start` and cleared at `cleared`: no "replies ok" while
+    /// they were on (the share of bad replies never fell below 2 % then), and, once any
+    /// judgement made over a window that still held faulty replies has been sent (a window,
+    /// 2 s, plus the flood guard's hold-off, 3 s), the last word is "replies ok".
+    async fn replies_recovered(
+        &mut self,
+        name: &str,
+        start: Instant,
+        cleared: Instant,
+    ) -> Duration {
+        let gcs = self.chain.gcs.clone();
+        let last_word = || {
+            texts_since(&gcs, start).into_iter().rfind(|(_, _, t)| {
+                replies_bad(base_text(t)) || base_text(t).ends_with(": replies ok")
+            })
+        };
+        wait_until(
+            &self.chain,
+            "'LJ9DA bus wing: replies ok' as the last word",
+            S(15),
+            || {
+                cleared.elapsed() >= MS(5500)
+                    && last_word().is_some_and(|(_, s, t)| {
+                        s == MavSeverity::MAV_SEVERITY_NOTICE && t == "LJ9DA bus wing: replies ok"
+                    })
+            },
+        )
+        .await;
+        let texts = texts_since(&self.chain.gcs, start);
+        for (at, _, text) in &texts {
+            if base_text(text) == "LJ9DA bus wing: replies ok" && *at < cleared {
+                self.violation(format!(
+                    "{name}: {text:?} heard {:.2} s into the phase, while the reply faults were still injected (cleared at {:.2} s)",
+                    at.saturating_duration_since(start).as_secs_f64(),
+                    cleared.saturating_duration_since(start).as_secs_f64()
+                ));
+            }
+            if replies_bad(base_text(text)) && *at > cleared + MS(5500) {
+                self.violation(format!(
+                    "{name}: {text:?} heard {:.2} s after the reply faults were cleared",
+                    at.saturating_duration_since(cleared).as_secs_f64()
+                ));
+            }
+        }
+        texts
+            .iter()
+            .find(|(at, _, t)| *at >= cleared && base_text(t) == "LJ9DA bus wing: replies ok")
+            .map_or(Duration::ZERO, |(at, _, _)| {
+                at.saturating_duration_since(cleared)
+            })
+    }
+
+    // ----- the phases -----
+
+    /// (1) Corrupted replies from servo 1 and dropped replies from servo 2.
+    async fn reply_faults(&mut self) {
+        let name = self.name_of("1 corrupted+dropped replies");
+        let start = Instant::now();
+        assert!(
+            self.sim
+                .inject(Some(1), Fault::CorruptReplies { probability: 0.3 })
+        );
+        assert!(
+            self.sim
+                .inject(Some(2), Fault::DropReplies { probability: 0.3 })
+        );
+        // The servos stay usable: goals reach them while their replies go bad.
+        for _ in 0..STEPS {
+            self.step(STEP_BOUND_DEGRADED).await;
+        }
+        let bad = expect_text(
+            &self.chain,
+            start,
+            MavSeverity::MAV_SEVERITY_WARNING,
+            "LJ9DA bus wing: N% replies bad",
+            S(20),
+            replies_bad,
+        )
+        .await;
+        self.detected_in_time(&name, bad);
+        let hold = S(5).saturating_sub(start.elapsed());
+        tokio::time::sleep(hold).await;
+        let stats = self.sim.stats();
+        assert!(self.sim.clear(Some(1), FaultKind::CorruptReplies));
+        assert!(self.sim.clear(Some(2), FaultKind::DropReplies));
+        let cleared = Instant::now();
+        let recovery = self
+            .all_online("every servo online after the reply faults")
+            .await;
+        let ok = self.replies_recovered(&name, start, cleared).await;
+        self.steps(STEP_BOUND).await;
+        let flapping = |t: &str| {
+            [NAMES[0], NAMES[1]]
+                .iter()
+                .any(|n| t == format!("{n}: servo lost"))
+        };
+        self.finish(
+            name,
+            start,
+            Some(recovery),
+            &[&replies_bad, &flapping],
+            vec![
+                format!("'replies bad' after {bad:?}, 'replies ok' {ok:?} after clearing"),
+                format!(
+                    "sim: {} replies corrupted, {} dropped so far",
+                    stats.replies_corrupted, stats.replies_dropped
+                ),
+            ],
+        );
+    }
+
+    /// (2) An adapter that echoes every byte the bridge sends.
+    async fn echo(&mut self) {
+        let name = self.name_of("2 echoing adapter");
+        let start = Instant::now();
+        let echoes_before = self.sim.stats().echo_bytes;
+        self.sim.set_echo(true);
+        let mut worst = Health::Online;
+        let mut n = 0;
+        while start.elapsed() < S(5) {
+            if n < STEPS {
+                self.step(STEP_BOUND).await;
+                n += 1;
+            }
+            for h in healths(&self.chain.view.borrow()) {
+                if h.severity() > worst.severity() {
+                    worst = h;
+                }
+            }
+            tokio::time::sleep(MS(20)).await;
+        }
+        self.sim.set_echo(false);
+        let echoed = self.sim.stats().echo_bytes - echoes_before;
+        assert!(echoed > 1000, "the adapter echoed only {echoed} bytes");
+        assert!(
+            worst != Health::Offline,
+            "a servo went offline behind an echoing adapter"
+        );
+        let recovery = self.all_online("every servo online after the echo").await;
+        self.steps(STEP_BOUND).await;
+        let lost = texts_since(&self.chain.gcs, start)
+            .into_iter()
+            .filter(|(_, _, t)| t.contains("servo lost"))
+            .count();
+        assert_eq!(lost, 0, "servo lost behind an echoing adapter");
+        self.finish(
+            name,
+            start,
+            Some(recovery),
+            &[],
+            vec![format!("{echoed} bytes echoed; worst health {worst:?}")],
+        );
+    }
+
+    /// (3) Servo 2 unplugged for 3 s, then plugged back in.
+    async fn unplug(&mut self) {
+        let name = self.name_of("3 servo 2 unplugged");
+        let start = Instant::now();
+        assert!(self.sim.unplug(2));
+        let view = self.chain.view.clone();
+        let offline = wait_until(&self.chain, "servo 2 offline", S(5), || {
+            view.borrow().servos[1].health == Health::Offline
+        })
+        .await;
+        let lost = expect_text(
+            &self.chain,
+            start,
+            MavSeverity::MAV_SEVERITY_CRITICAL,
+            "aileron_right: servo lost",
+            S(5),
+            exactly("aileron_right: servo lost".into()),
+        )
+        .await;
+        tokio::time::sleep(S(3).saturating_sub(start.elapsed())).await;
+        assert!(self.sim.plug(2));
+        let plugged = Instant::now();
+        let recovery = self
+            .all_online("servo 2 online after being plugged in")
+            .await;
+        let back = expect_text(
+            &self.chain,
+            plugged,
+            MavSeverity::MAV_SEVERITY_NOTICE,
+            "aileron_right: servo back",
+            S(6),
+            exactly("aileron_right: servo back".into()),
+        )
+        .await;
+        self.steps(STEP_BOUND).await;
+        let lost_text = |t: &str| t == "aileron_right: servo lost";
+        self.finish(
+            name,
+            start,
+            Some(recovery),
+            &[&lost_text],
+            vec![format!(
+                "offline after {offline:?}, 'servo lost' after {lost:?}, 'servo back' {back:?} after plugging"
+            )],
+        );
+    }
+
+    /// (4) Servo 3's rod blocked while it is commanded to move, then freed.
+    async fn stall(&mut self) {
+        let name = self.name_of("4 servo 3 stalled");
+        let start = Instant::now();
+        assert!(self.sim.set_stalled(3, true));
+        self.n += 1;
+        let goals = goals_of(self.n);
+        self.goals = goals;
+        self.ap.set(goals);
+        let stalled = expect_text(
+            &self.chain,
+            start,
+            MavSeverity::MAV_SEVERITY_ERROR,
+            "elevator: stalled",
+            S(4),
+            exactly("elevator: stalled".into()),
+        )
+        .await;
+        // The view is refreshed at most every 50 ms: it may follow the STATUSTEXT a little.
+        let view = self.chain.view.clone();
+        wait_until(
+            &self.chain,
+            "the view showing the elevator stalled",
+            S(1),
+            || view.borrow().servos[2].report.stalled,
+        )
+        .await;
+        tokio::time::sleep(S(1)).await;
+        assert!(self.sim.set_stalled(3, false));
+        let freed = Instant::now();
+        let recovery = self.all_online("every servo online after the stall").await;
+        let moving = expect_text(
+            &self.chain,
+            freed,
+            MavSeverity::MAV_SEVERITY_NOTICE,
+            "elevator: moving again",
+            S(6),
+            exactly("elevator: moving again".into()),
+        )
+        .await;
+        // The freed rod reaches the goal it was blocked from.
+        let sim = self.sim.clone();
+        let goal = f32::from(goals[2]) / 100.0;
+        let arrived = wait_until(&self.chain, "the freed elevator at its goal", S(3), || {
+            sim.snapshot(3)
+                .is_some_and(|s| (s.position_mm - goal).abs() < 0.1)
+        })
+        .await;
+        self.steps(STEP_BOUND).await;
+        let stalled_text = |t: &str| t == "elevator: stalled";
+        self.finish(
+            name,
+            start,
+            Some(recovery),
+            &[&stalled_text],
+            vec![format!(
+                "'stalled' after {stalled:?}, 'moving again' {moving:?} after freeing, at its goal {arrived:?} after"
+            )],
+        );
+    }
+
+    /// (5) Servo 4 overheats (alarm, then error and force off); cooled and power-cycled.
+    async fn overheat(&mut self) {
+        let name = self.name_of("5 servo 4 overheating");
+        let start = Instant::now();
+        assert!(self.sim.overheat(4));
+        let alarm = expect_text(
+            &self.chain,
+            start,
+            MavSeverity::MAV_SEVERITY_WARNING,
+            "rudder: temperature alarm NNC",
+            S(12),
+            temperature_alarm("rudder"),
+        )
+        .await;
+        let error = expect_text(
+            &self.chain,
+            start,
+            MavSeverity::MAV_SEVERITY_CRITICAL,
+            "rudder: overheat NNC, force off",
+            S(15),
+            overheat("rudder"),
+        )
+        .await;
+        let view = self.chain.view.clone();
+        wait_until(&self.chain, "the rudder in temperature error", S(3), || {
+            view.borrow().servos[3].health == Health::TemperatureError
+        })
+        .await;
+        let s4 = self.sim.snapshot(4).expect("servo 4");
+        assert!(
+            s4.error && s4.force == Force::Off,
+            "servo 4 not latched off: {s4:?}"
+        );
+        tokio::time::sleep(MS(500)).await;
+        // Cool it; the latched error needs a power cycle.
+        assert!(self.sim.set_temperature(4, 30.0));
+        assert!(self.sim.clear(Some(4), FaultKind::Overheat));
+        assert!(self.sim.power_cycle(4));
+        let cycled = Instant::now();
+        let recovery = self
+            .all_online("the rudder online after its power cycle")
+            .await;
+        let ok = expect_text(
+            &self.chain,
+            cycled,
+            MavSeverity::MAV_SEVERITY_NOTICE,
+            "rudder: temperature ok NNC",
+            S(6),
+            temperature_ok("rudder"),
+        )
+        .await;
+        let ok_text = texts_since(&self.chain.gcs, cycled)
+            .into_iter()
+            .find(|(_, _, t)| temperature_ok("rudder")(base_text(t)))
+            .map(|(_, _, t)| t)
+            .unwrap_or_default();
+        // The alarm is set 10 °C below the 85 °C limit: if "ok" quotes a temperature, it must be
+        // below 75 °C (the servo was cooled to 30 °C); a stale reading must not be quoted.
+        let quoted: Option<i32> = base_text(&ok_text)
+            .strip_prefix("rudder: temperature ok ")
+            .and_then(|t| t.strip_suffix('C'))
+            .and_then(|t| t.parse().ok());
+        if quoted.is_some_and(|c| c >= 75) {
+            let now_c = self.sim.snapshot(4).map(|s| s.temperature_c);
+            self.violation(format!(
+                "{name}: {ok_text:?} quotes a temperature at or above the alarm threshold (75 C); the servo is at {now_c:?} C"
+            ));
+        }
+        // Force on again after the next goal.
+        self.steps(STEP_BOUND).await;
+        let s4 = self.sim.snapshot(4).expect("servo 4");
+        assert_eq!(
+            s4.force,
+            Force::On,
+            "the rudder's force after its power cycle"
+        );
+        let texts: [&dyn Fn(&str) -> bool; 3] = [
+            &temperature_alarm("rudder"),
+            &overheat("rudder"),
+            // A request or two may go unanswered while it boots.
+            &|t: &str| t == "rudder: servo lost",
+        ];
+        self.finish(
+            name,
+            start,
+            Some(recovery),
+            &texts,
+            vec![format!(
+                "alarm after {alarm:?}, overheat after {error:?}, {ok_text:?} {ok:?} after the power cycle"
+            )],
+        );
+    }
+
+    /// (6) The autopilot's output stream stops for 1.5 s, then resumes.
+    async fn failsafe(&mut self) {
+        let name = self.name_of("6 autopilot outputs stop");
+        let start = Instant::now();
+        self.ap.pause(true);
+        let view = self.chain.view.clone();
+        let entered = wait_until(&self.chain, "failsafe", S(2), || view.borrow().failsafe).await;
+        // The elevator takes its failsafe position.
+        let sim = self.sim.clone();
+        wait_until(
+            &self.chain,
+            "the elevator at its failsafe goal",
+            S(2),
+            || {
+                sim.snapshot(3)
+                    .is_some_and(|s| (s.goal_mm * 100.0).round() as i16 == ELEVATOR_FAILSAFE)
+            },
+        )
+        .await;
+        let text = expect_text(
+            &self.chain,
+            start,
+            MavSeverity::MAV_SEVERITY_WARNING,
+            "LJ9DA failsafe: no outputs for 400 ms",
+            S(3),
+            exactly("LJ9DA failsafe: no outputs for 400 ms".into()),
+        )
+        .await;
+        tokio::time::sleep(MS(1500).saturating_sub(start.elapsed())).await;
+        self.ap.pause(false);
+        let resumed = Instant::now();
+        let left = wait_until(&self.chain, "failsafe left", S(2), || {
+            !view.borrow().failsafe
+        })
+        .await;
+        let cleared = expect_text(
+            &self.chain,
+            resumed,
+            MavSeverity::MAV_SEVERITY_NOTICE,
+            "LJ9DA failsafe cleared",
+            S(5),
+            exactly("LJ9DA failsafe cleared".into()),
+        )
+        .await;
+        // The autopilot's goals again, not the failsafe's.
+        let goals = self.goals;
+        let sim = self.sim.clone();
+        wait_until(
+            &self.chain,
+            "the elevator back on the autopilot's goal",
+            S(2),
+            || {
+                sim.snapshot(3)
+                    .is_some_and(|s| (s.goal_mm * 100.0).round() as i16 == goals[2])
+            },
+        )
+        .await;
+        let recovery = self
+            .all_online("every servo online after the failsafe")
+            .await;
+        self.steps(STEP_BOUND).await;
+        let failsafe_text = |t: &str| t == "LJ9DA failsafe: no outputs for 400 ms";
+        self.finish(
+            name,
+            start,
+            Some(left.max(recovery)),
+            &[&failsafe_text],
+            vec![format!(
+                "failsafe after {entered:?} (text {text:?}), left {left:?} after resuming (text {cleared:?})"
+            )],
+        );
+    }
+
+    /// (7) MAVLink garbage to the bridge's port, then a flood of outputs.
+    async fn garbage_and_flood(&mut self, rng: &mut XorShift64) {
+        let name = self.name_of("7 MAVLink garbage + flood");
+        let start = Instant::now();
+        let port = self.chain.autopilot_port;
+        let socket = tokio::net::UdpSocket::bind("127.0.0.1:0")
+            .await
+            .expect("garbage socket");
+        let foreign = Instant::now();
+        let events = self.sim.subscribe();
+        let mut kinds = [0u32; 8];
+        let mut datagrams = 0u32;
+        // ~2 s of garbage, ~500 datagrams a second, while the real stream goes on.
+        while foreign.elapsed() < S(2) {
+            for _ in 0..10 {
+                let kind = rng.below(kinds.len());
+                kinds[kind] += 1;
+                let datagram = garbage(kind, rng);
+                let _ = socket.send_to(&datagram, ("127.0.0.1", port)).await;
+                datagrams += 1;
+            }
+            tokio::time::sleep(MS(20)).await;
+        }
+        let garbage_end = Instant::now();
+        // Nothing from the unknown senders or the broken frames reached a servo.
+        tokio::time::sleep(MS(200)).await;
+        let mut foreign_goals = Vec::new();
+        while let Ok(event) = events.try_recv() {
+            if let BusEvent::Packet(p) = event {
+                foreign_goals.extend(
+                    p.packet
+                        .goal_positions()
+                        .into_iter()
+                        .filter(|(_, g)| *g == FOREIGN_GOAL),
+                );
+            }
+        }
+        drop(events);
+        assert!(
+            foreign_goals.is_empty(),
+            "goals from unknown senders or broken frames reached the servos: {foreign_goals:?}"
+        );
+        let failsafe_texts: Vec<String> = texts_since(&self.chain.gcs, foreign)
+            .into_iter()
+            .filter(|(_, _, t)| t.contains("failsafe"))
+            .map(|(_, _, t)| t)
+            .collect();
+        if self.chain.view.borrow().failsafe || !failsafe_texts.is_empty() {
+            self.violation(format!(
+                "{name}: failsafe while the real stream went on next to the garbage: {failsafe_texts:?}"
+            ));
+        }
+        self.steps(STEP_BOUND).await;
+
+        // The flood: 5000 SERVO_OUTPUT_RAW in about a second, the last ones with the next goals.
+        self.n += 1;
+        let last = goals_of(self.n);
+        let flood_events = self.sim.subscribe();
+        let flood = Instant::now();
+        self.goals = last;
+        self.ap.set(last);
+        let mut flood_sent = 0u32;
+        for burst in 0..100 {
+            for k in 0..50 {
+                let goals = if burst == 99 && k >= 40 {
+                    last
+                } else {
+                    std::array::from_fn(|_| (rng.below(31) as i16 - 15) * 100)
+                };
+                if self.ap.conn.send(&AUTOPILOT, &outputs(goals)).await.is_ok() {
+                    flood_sent += 1;
+                }
+            }
+            tokio::time::sleep(MS(10)).await;
+        }
+        let flood_time = flood.elapsed();
+        let settled = self
+            .reached(
+                &flood_events,
+                last,
+                flood,
+                flood_time + S(1),
+                "after the flood",
+            )
+            .await
+            .saturating_sub(flood_time);
+        drop(flood_events);
+        self.steps(STEP_BOUND).await;
+        // The bridge's heartbeat went on at about 1 Hz through garbage and flood.
+        tokio::time::sleep(MS(1200)).await;
+        let window = start.elapsed();
+        let beats: Vec<Instant> = self
+            .chain
+            .gcs
+            .since(start)
+            .into_iter()
+            .filter(|(_, h, m)| h.component_id == 140 && matches!(m, MavMessage::HEARTBEAT(_)))
+            .map(|(t, _, _)| t)
+            .collect();
+        let gaps: Vec<Duration> = beats.windows(2).map(|w| w[1] - w[0]).collect();
+        let worst_gap = gaps.iter().max().copied().unwrap_or(window);
+        let expected = window.as_secs_f64();
+        assert!(
+            (beats.len() as f64) >= expected - 1.5 && (beats.len() as f64) <= expected + 1.5,
+            "{} bridge heartbeats in {window:?}",
+            beats.len()
+        );
+        assert!(
+            worst_gap < MS(1600),
+            "the bridge's heartbeat stalled for {worst_gap:?}"
+        );
+        let recovery = self
+            .all_online("every servo online after garbage and flood")
+            .await;
+        self.finish(
+            name,
+            start,
+            Some(recovery),
+            &[],
+            vec![
+                format!(
+                    "{datagrams} garbage datagrams in {:?} (kinds {kinds:?}); no foreign goal reached a servo",
+                    garbage_end - foreign
+                ),
+                format!(
+                    "flood: {flood_sent} SERVO_OUTPUT_RAW in {flood_time:?}; its last goals on the servos {settled:?} after it ended"
+                ),
+                format!(
+                    "{} bridge heartbeats in {window:?}, longest gap {worst_gap:?}",
+                    beats.len()
+                ),
+            ],
+        );
+    }
+
+    /// (8) The serial device disappears for 1 s and reappears.
+    async fn port(&mut self) {
+        let name = self.name_of("8 serial device gone");
+        let start = Instant::now();
+        let sim = self.sim.clone();
+        tokio::task::spawn_blocking(move || sim.disconnect_port())
+            .await
+            .expect("disconnect");
+        let lost = expect_text(
+            &self.chain,
+            start,
+            MavSeverity::MAV_SEVERITY_CRITICAL,
+            "LJ9DA bus wing: port lost",
+            S(3),
+            exactly("LJ9DA bus wing: port lost".into()),
+        )
+        .await;
+        tokio::time::sleep(S(1).saturating_sub(start.elapsed())).await;
+        let sim = self.sim.clone();
+        let path = tokio::task::spawn_blocking(move || sim.try_reconnect_port())
+            .await
+            .expect("reconnect")
+            .expect("the simulated device reappears");
+        let reconnected = Instant::now();
+        let recovery = self
+            .all_online("every servo online after the port came back")
+            .await;
+        let back = expect_text(
+            &self.chain,
+            reconnected,
+            MavSeverity::MAV_SEVERITY_NOTICE,
+            "LJ9DA bus wing: port back",
+            S(6),
+            exactly("LJ9DA bus wing: port back".into()),
+        )
+        .await;
+        self.steps(STEP_BOUND).await;
+        let lost_text = |t: &str| t == "LJ9DA bus wing: port lost";
+        self.finish(
+            name,
+            start,
+            Some(recovery),
+            &[&lost_text],
+            vec![format!(
+                "'port lost' after {lost:?}; device back at {} , 'port back' {back:?} after",
+                path.display()
+            )],
+        );
+    }
+
+    /// (9) Corrupted replies from servo 1, servo 3 unplugged and an echoing adapter, together.
+    async fn combined(&mut self) {
+        let name = self.name_of("9 corruption + unplug + echo together");
+        let start = Instant::now();
+        assert!(
+            self.sim
+                .inject(Some(1), Fault::CorruptReplies { probability: 0.3 })
+        );
+        assert!(self.sim.unplug(3));
+        self.sim.set_echo(true);
+        let lost = expect_text(
+            &self.chain,
+            start,
+            MavSeverity::MAV_SEVERITY_CRITICAL,
+            "elevator: servo lost",
+            S(5),
+            exactly("elevator: servo lost".into()),
+        )
+        .await;
+        let bad = expect_text(
+            &self.chain,
+            start,
+            MavSeverity::MAV_SEVERITY_WARNING,
+            "LJ9DA bus wing: N% replies bad",
+            S(20),
+            replies_bad,
+        )
+        .await;
+        self.detected_in_time(&name, bad);
+        tokio::time::sleep(S(5).saturating_sub(start.elapsed())).await;
+        self.sim.clear_all();
+        let cleared = Instant::now();
+        let recovery = self
+            .all_online("every servo online after the combined faults")
+            .await;
+        let back = expect_text(
+            &self.chain,
+            cleared,
+            MavSeverity::MAV_SEVERITY_NOTICE,
+            "elevator: servo back",
+            S(6),
+            exactly("elevator: servo back".into()),
+        )
+        .await;
+        let ok = self.replies_recovered(&name, start, cleared).await;
+        self.steps(STEP_BOUND).await;
+        let expected = |t: &str| t == "elevator: servo lost" || t == "aileron_left: servo lost";
+        self.finish(
+            name,
+            start,
+            Some(recovery),
+            &[&expected, &replies_bad],
+            vec![format!(
+                "'servo lost' after {lost:?}, 'replies bad' after {bad:?}; after clearing: 'servo back' {back:?}, 'replies ok' {ok:?}"
+            )],
+        );
+    }
+}
+
+/// One datagram of garbage of kind `kind`: random bytes, fake MAVLink 2 and 1 headers, valid
+/// frames from unknown systems or components, truncated and corrupted frames, mixtures.
+fn garbage(kind: usize, rng: &mut XorShift64) -> Vec<u8> {
+    let random = |rng: &mut XorShift64, n: usize| -> Vec<u8> {
+        (0..n).map(|_| rng.next_u64() as u8).collect()
+    };
+    let frame = |version, system_id, component_id, msg: &MavMessage| {
+        let mut out = Vec::new();
+        mavlink::write_versioned_msg(
+            &mut out,
+            version,
+            MavHeader {
+                system_id,
+                component_id,
+                sequence: 0,
+            },
+            msg,
+        )
+        .expect("frame");
+        out
+    };
+    let foreign = outputs([FOREIGN_GOAL; 4]);
+    match kind {
+        0 => {
+            let n = 1 + rng.below(280);
+            random(rng, n)
+        }
+        1 | 2 => {
+            let mut d = vec![if kind == 1 { 0xFD } else { 0xFE }];
+            let n = rng.below(300);
+            d.extend(random(rng, n));
+            d
+        }
+        3 => frame(MavlinkVersion::V2, 77, 1, &foreign),
+        4 => {
+            let mut d = frame(
+                MavlinkVersion::V1,
+                78,
+                1,
+                &heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4),
+            );
+            d.extend(frame(MavlinkVersion::V1, 78, 1, &foreign));
+            d
+        }
+        5 => {
+            // The real autopilot's ids, the foreign goal: truncated, or one byte flipped.
+            let mut d = frame(MavlinkVersion::V2, 1, 1, &foreign);
+            if rng.below(2) == 0 {
+                d.truncate(1 + rng.below(d.len() - 1));
+            } else {
+                let i = 1 + rng.below(d.len() - 1);
+                d[i] ^= rng.nonzero_byte();
+            }
+            d
+        }
+        6 => frame(MavlinkVersion::V2, 1, 77, &foreign),
+        _ => {
+            let n = rng.below(40);
+            let mut d = random(rng, n);
+            d.extend(frame(MavlinkVersion::V2, 79, 1, &foreign));
+            let n = rng.below(40);
+            d.extend(random(rng, n));
+            d
+        }
+    }
+}
+
+fn print_phase(log: &PhaseLog, started: Instant) {
+    let recovery = log
+        .recovery
+        .map_or("-".to_string(), |r| format!("{:.2} s", r.as_secs_f64()));
+    println!(
+        "[soak] {:>6.1} s  {:<42} {:>5.1} s  back online {recovery}",
+        (Instant::now() - started).as_secs_f64(),
+        log.name,
+        log.duration.as_secs_f64()
+    );
+    for (t, s, text) in &log.texts {
+        println!(
+            "[soak]            +{:>5.2} s {:<8} {text}",
+            t.saturating_duration_since(log.start).as_secs_f64(),
+            short_severity(*s)
+        );
+    }
+    for note in &log.notes {
+        println!("[soak]            {note}");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fault_soak() {
+    count_panics();
+    let rounds = env_number("LJ9DA_SOAK_ROUNDS").unwrap_or(1).max(1);
+    let seconds = env_number("LJ9DA_SOAK_SECONDS").map(S);
+    let started = Instant::now();
+    let chain = Chain::start_opts(
+        MAPPING,
+        ChainOptions {
+            autopilot: false,
+            stable_links: true,
+            // A long run must not hold every telemetry message: keep what is asserted on.
+            gcs_keep: Some(|m| matches!(m, MavMessage::STATUSTEXT(_) | MavMessage::HEARTBEAT(_))),
+            ..ChainOptions::default()
+        },
+    )
+    .await;
+    let sim = chain.sims[0].handle();
+    assert!(
+        sim.path().is_symlink(),
+        "the bridge must open the stable symlink"
+    );
+    let ap = Autopilot::start(chain.autopilot_port, goals_of(0)).await;
+    let mut soak = Soak {
+        chain,
+        sim,
+        ap,
+        started,
+        n: 0,
+        goals: goals_of(0),
+        log: Vec::new(),
+        rss: Vec::new(),
+        step_latencies: Vec::new(),
+        round: 0,
+        violations: Vec::new(),
+    };
+
+    // Warm-up: every servo online, the bridge's heartbeat heard, goals reach the servos.
+    let warm = Instant::now();
+    let online = soak.all_online("every servo online at start").await;
+    let view = soak.chain.view.clone();
+    wait_until(
+        &soak.chain,
+        "the bridge obeying the autopilot",
+        S(5),
+        || view.borrow().autopilot == Some((1, 1)),
+    )
+    .await;
+    soak.steps(S(5)).await;
+    while warm.elapsed() < S(5) {
+        soak.step(STEP_BOUND).await;
+        tokio::time::sleep(MS(300)).await;
+    }
+    soak.finish(
+        "warm-up".into(),
+        warm,
+        Some(online),
+        &[],
+        vec![format!("all online {online:?} after start")],
+    );
+
+    let mut rng = XorShift64::new(0x50A4);
+    loop {
+        soak.round += 1;
+        soak.reply_faults().await;
+        soak.echo().await;
+        soak.unplug().await;
+        soak.stall().await;
+        soak.overheat().await;
+        soak.failsafe().await;
+        soak.garbage_and_flood(&mut rng).await;
+        soak.port().await;
+        soak.combined().await;
+        let more_rounds = soak.round < rounds;
+        let more_time = seconds.is_some_and(|s| started.elapsed() < s);
+        if !more_rounds && !more_time {
+            break;
+        }
+    }
+    // A quiet end: no fault, goals still followed, and no late warning from the faults gone.
+    let quiet = Instant::now();
+    while quiet.elapsed() < S(8) {
+        soak.step(STEP_BOUND).await;
+        tokio::time::sleep(MS(300)).await;
+    }
+    let view = soak.chain.view.clone();
+    assert!(all_online(&view.borrow()), "{:?}", healths(&view.borrow()));
+    soak.finish("quiet end".into(), quiet, None, &[], vec![]);
+
+    // The summary.
+    let total = started.elapsed();
+    let rss: Vec<String> = soak
+        .rss
+        .iter()
+        .map(|(l, k)| format!("{l}: {:.1} MiB", *k as f64 / 1024.0))
+        .collect();
+    let first = soak.rss.first().map_or(0, |r| r.1);
+    let last = soak.rss.last().map_or(0, |r| r.1);
+    let peak = soak.rss.iter().map(|r| r.1).max().unwrap_or(0);
+    let mut latencies = soak.step_latencies.clone();
+    latencies.sort();
+    let pct = |p: f64| latencies[((latencies.len() - 1) as f64 * p) as usize];
+    println!("[soak] ---- summary ----");
+    println!(
+        "[soak] {} round(s), {} phases, {:.1} s in all",
+        soak.round,
+        soak.log.len(),
+        total.as_secs_f64()
+    );
+    for log in &soak.log {
+        println!(
+            "[soak]   {:<42} {:>5.1} s  back online {}",
+            log.name,
+            log.duration.as_secs_f64(),
+            log.recovery
+                .map_or("-".into(), |r| format!("{:.2} s", r.as_secs_f64()))
+        );
+    }
+    println!(
+        "[soak] goals checked: {} steps, reached in median {:?}, p90 {:?}, max {:?}",
+        latencies.len(),
+        pct(0.5),
+        pct(0.9),
+        pct(1.0)
+    );
+    println!(
+        "[soak] autopilot sent {} outputs; ground station heard {} messages",
+        soak.ap.sent.load(Ordering::Relaxed),
+        soak.chain.gcs.count()
+    );
+    println!(
+        "[soak] VmRSS of the test process (bridge + simulator + test harness), after warm-up and each phase:"
+    );
+    for r in &rss {
+        println!("[soak]   {r}");
+    }
+    println!(
+        "[soak] VmRSS growth {:+.1} MiB (first {:.1}, last {:.1}, peak {:.1}; limit {} MiB)",
+        (last as f64 - first as f64) / 1024.0,
+        first as f64 / 1024.0,
+        last as f64 / 1024.0,
+        peak as f64 / 1024.0,
+        RSS_GROWTH_LIMIT_KIB / 1024
+    );
+    assert!(
+        last.saturating_sub(first) < RSS_GROWTH_LIMIT_KIB,
+        "memory grew by {} KiB: {rss:?}",
+        last.saturating_sub(first)
+    );
+    assert_eq!(PANICS.load(Ordering::SeqCst), 0, "a panic during the soak");
+    assert!(
+        soak.violations.is_empty(),
+        "{} wrong STATUSTEXT(s) during the soak:\n{}",
+        soak.violations.len(),
+        soak.violations.join("\n")
+    );
+    drop(soak.ap);
+    soak.chain.stop().await;
+}
