@@ -12,9 +12,9 @@
 pub mod bus;
 pub mod commission;
 pub mod config;
+pub mod deploy;
 #[doc(hidden)]
 pub mod fuzz_targets;
-pub mod deploy;
 pub mod mavlink;
 pub mod protocol;
 pub mod record;

@@ -332,6 +332,8 @@ pub async fn run(
     }
 
     let mut view_at = Instant::now();
+    let mut pending_goals: Vec<Vec<(ServoId, crate::bus::Goal)>> =
+        vec![Vec::new(); buses.handles.len()];
     let mut qualities: Vec<ReplyQuality> = buses
         .handles
         .iter()
@@ -369,12 +371,18 @@ pub async fn run(
                 }
             }
         }
+        // One message's goals leave in one long packet per bus.
         while let Some((servo, goal)) = core.poll_command() {
             if let Some((bus, id)) = buses.servo_at.get(servo) {
-                buses.handles[*bus].set_goal(*id, goal);
+                pending_goals[*bus].push((*id, goal));
             }
             if let Some(r) = &record {
                 r.goal(servo, goal);
+            }
+        }
+        for (bus, goals) in pending_goals.iter_mut().enumerate() {
+            if !goals.is_empty() {
+                buses.handles[bus].set_goals(goals.drain(..));
             }
         }
         if let Some(header) = core.header() {
@@ -413,7 +421,7 @@ pub async fn run(
     let leave = match cfg.bridge.on_exit {
         ExitAction::Hold => ShutdownForce::AsIs,
         ExitAction::Off => ShutdownForce::Off,
-        ExitAction::Brake => ShutdownForce::AsIs, // FIXME-BRAKE
+        ExitAction::Brake => ShutdownForce::Brake,
     };
     tracing::info!(?leave, "stopping: closing the buses");
     for bus in &buses.handles {

@@ -117,6 +117,39 @@ async fn the_line_is_never_talked_over_and_every_request_is_answered() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_goals_of_one_message_leave_in_one_long_packet() {
+    let ids = [1, 2, 3, 4];
+    let sim = spawn_sim(sim_config(&ids, 115_200));
+    let mut cfg = bus_config(&ids, BaudRate::B115200);
+    // An idle bus: telemetry rarely, so the goals find the line free.
+    cfg.telemetry_min_interval = Duration::from_secs(5);
+    cfg.verify_interval = Duration::from_secs(5);
+    cfg.stale_after = Duration::from_secs(20);
+    let bus = spawn_bus(cfg, sim.path());
+    wait_status(&bus, "every servo online", |s| {
+        s.servos.iter().all(|s| s.health == Health::Online)
+    })
+    .await;
+    bus.set_goals(ids.map(|n| (id(n), Goal::Position(MmCenti(0)))));
+    wait_status(&bus, "force on", all_online_with_force).await;
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let events = sim.handle().subscribe();
+    bus.set_goals(ids.map(|n| (id(n), Goal::Position(MmCenti(10 * i16::from(n))))));
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let longs: Vec<Vec<(u8, i16)>> = events
+        .try_iter()
+        .filter_map(|e| match e {
+            SimEvent::Packet(p) if matches!(p.packet, HostPacket::Long(_)) => {
+                Some(p.packet.goal_positions())
+            }
+            _ => None,
+        })
+        .collect();
+    assert_eq!(longs, vec![vec![(1, 10), (2, 20), (3, 30), (4, 40)]]);
+    bus.shutdown(ShutdownForce::AsIs).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn shutdown_with_force_off_leaves_every_servo_limp() {
     let ids = [1, 2];
     let sim = spawn_sim(sim_config(&ids, 115_200));

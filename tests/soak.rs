@@ -204,9 +204,15 @@ fn temperature_alarm(name: &'static str) -> impl Fn(&str) -> bool {
 /// "<name>: temperature ok NNC", or "<name>: temperature ok" when the bridge has no reading
 /// taken after the event (e.g. right after a power cycle).
 fn temperature_ok(name: &'static str) -> impl Fn(&str) -> bool {
-    move |t| match t.strip_prefix(name).and_then(|t| t.strip_prefix(": temperature ok")) {
+    move |t| match t
+        .strip_prefix(name)
+        .and_then(|t| t.strip_prefix(": temperature ok"))
+    {
         Some("") => true,
-        Some(rest) => rest.strip_prefix(' ').and_then(|t| t.strip_suffix('C')).is_some_and(is_number),
+        Some(rest) => rest
+            .strip_prefix(' ')
+            .and_then(|t| t.strip_suffix('C'))
+            .is_some_and(is_number),
         None => false,
     }
 }

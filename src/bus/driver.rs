@@ -1,16 +1,24 @@
 //! The thin tokio shell around one [`BusMaster`]: a serial port, a timer, goals in, status and
 //! events out.
 //!
-//! One task per bus. Each turn of its loop writes every packet the bus master has due, then
-//! waits for whichever comes first: bytes from the port (a reply is acted on in the same turn
-//! that completes it), a new goal (written at once when no reply is pending), or the bus
-//! master's deadline. A port that fails or disappears is reopened with back-off
+//! The bus master and the write side of the port sit together behind one mutex (the *core*).
+//! Packets that became due are written before the lock is let go: by
+//! [`BusHandle::set_goals`] in the caller's thread (the goals of one autopilot message reach the
+//! port within one system call, with no thread to wake first), and by the driver task when a
+//! reply completes (in the same turn that read its last byte), when a deadline passes, or when
+//! [`BusHandle::set_goal`] woke it (goals set one by one meanwhile share one long packet). Order on the wire
+//! is the order of the lock; the bus master alone decides what may be sent (never while a reply
+//! is pending).
+//!
+//! The driver task (one per bus) reads the port, keeps the bus master's deadline (a caller wakes
+//! it only when that deadline moved), publishes the status (when it changed, at least every
+//! 100 ms) and the events, and reopens a port that fails or disappears with back-off
 //! (`port_reopen_backoff`, 100 ms doubling to 2 s by default); goals keep being accepted
 //! meanwhile.
 //!
-//! All protocol decisions belong to the bus master; this file must never decide what to send
-//! or when, only carry bytes and time between the port and the bus master. It never panics: a
-//! port error is a lost port, a closed channel is a shutdown.
+//! This file must never decide what to send or when: it only carries bytes and time between the
+//! port and the bus master. It never panics: a port error is a lost port, a poisoned lock is
+//! taken over, a runtime that cannot start is logged.
 
 use super::config::BusConfig;
 use super::event::BusEvent;
@@ -18,10 +26,14 @@ use super::goal::{Goal, ShutdownForce};
 use super::master::BusMaster;
 use super::status::BusStatus;
 use crate::protocol::{BaudRate, ServoId};
+use std::fs::File;
+use std::io::Write;
+use std::os::fd::{FromRawFd, IntoRawFd};
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::sync::{broadcast, mpsc, watch};
+use tokio::io::AsyncReadExt;
+use tokio::sync::{Notify, broadcast, watch};
 use tokio_serial::{DataBits, FlowControl, Parity, SerialStream, StopBits};
 
 /// Events kept for a slow subscriber before it starts missing them.
@@ -29,29 +41,89 @@ const EVENT_CAPACITY: usize = 256;
 /// The status is published when it changes, and at least this often (ages grow).
 const STATUS_REFRESH: Duration = Duration::from_millis(100);
 
-enum Command {
-    Goal(ServoId, Goal),
-    Shutdown(ShutdownForce),
+/// The bus master and the port's write side, changed only together.
+struct Core {
+    master: BusMaster,
+    /// The write side of the open port (`None` while the port is away).
+    writer: Option<File>,
+    /// Why the last write failed; the driver then treats the port as lost.
+    write_error: Option<String>,
+    /// The bus master's deadline the driver is sleeping on.
+    armed: Option<Instant>,
+}
+
+impl Core {
+    /// Write every packet the bus master has due now. A write that fails (or would block: the
+    /// bus master never queues more than about two frames, so a full output buffer means the
+    /// port is stuck) closes the write side and leaves the reason for the driver.
+    fn flush(&mut self) {
+        let Some(writer) = self.writer.as_mut() else {
+            return;
+        };
+        while let Some(tx) = self.master.poll_transmit(Instant::now()) {
+            if let Err(e) = writer.write_all(&tx.bytes) {
+                self.write_error = Some(format!("write failed: {e}"));
+                self.writer = None;
+                return;
+            }
+        }
+    }
+
+    /// Whether the driver must wake up: its deadline moved (e.g. a request now awaits a reply)
+    /// or the port failed.
+    fn driver_must_wake(&self) -> bool {
+        self.write_error.is_some() || self.master.poll_timeout() != self.armed
+    }
+}
+
+/// What the driver task and every [`BusHandle`] share.
+struct Shared {
+    core: Mutex<Core>,
+    /// Tells the driver that the bus master changed (its deadline may have moved).
+    wake: Notify,
+}
+
+impl Shared {
+    fn core(&self) -> MutexGuard<'_, Core> {
+        self.core
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+}
+
+/// Dropped with the last [`BusHandle`]: the bus then shuts down, leaving the servos as they are.
+struct Owners {
+    shared: Arc<Shared>,
+}
+
+impl Drop for Owners {
+    fn drop(&mut self) {
+        let mut core = self.shared.core();
+        core.master.shutdown(ShutdownForce::AsIs);
+        core.flush();
+        drop(core);
+        self.shared.wake.notify_one();
+    }
 }
 
 /// The rest of the bridge's hold on one running bus: goals in, status and events out. Cheap to
 /// clone; the bus keeps running until [`BusHandle::shutdown`] or until every clone is dropped
 /// (which leaves the servos as they are).
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct BusHandle {
     name: String,
-    commands: mpsc::UnboundedSender<Command>,
+    owners: Arc<Owners>,
     status: watch::Receiver<BusStatus>,
     events: broadcast::Sender<BusEvent>,
     finished: watch::Receiver<bool>,
 }
 
-impl std::fmt::Debug for Command {
+impl std::fmt::Debug for BusHandle {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Command::Goal(id, g) => write!(f, "Goal({id}, {g:?})"),
-            Command::Shutdown(l) => write!(f, "Shutdown({l:?})"),
-        }
+        f.debug_struct("BusHandle")
+            .field("name", &self.name)
+            .field("finished", &self.is_finished())
+            .finish()
     }
 }
 
@@ -60,10 +132,32 @@ impl BusHandle {
         &self.name
     }
 
-    /// The newest goal for servo `id`; written at once when the bus is free. Ignored after
-    /// shutdown and for IDs not on this bus.
+    /// The newest goal for servo `id`; the driver writes it as soon as it wakes (goals set one
+    /// after another meanwhile share one long packet). Ignored after shutdown and for IDs not
+    /// on this bus. For the goals of one autopilot message, [`BusHandle::set_goals`] is faster.
     pub fn set_goal(&self, id: ServoId, goal: Goal) {
-        let _ = self.commands.send(Command::Goal(id, goal));
+        let shared = &self.owners.shared;
+        shared.core().master.set_goal(id, goal, Instant::now());
+        shared.wake.notify_one();
+    }
+
+    /// The newest goals of several servos at once (e.g. every channel of one autopilot
+    /// message). When no reply is pending and the wire is free, the one long packet carrying
+    /// them is written before this returns, from the caller's thread.
+    pub fn set_goals(&self, goals: impl IntoIterator<Item = (ServoId, Goal)>) {
+        let shared = &self.owners.shared;
+        let mut core = shared.core();
+        let now = Instant::now();
+        for (id, goal) in goals {
+            core.master.set_goal(id, goal, now);
+        }
+        core.flush();
+        let wake = core.driver_must_wake();
+        drop(core);
+        // The write is done; the driver (another thread) is woken only when it must re-arm.
+        if wake {
+            shared.wake.notify_one();
+        }
     }
 
     /// The latest status the driver published.
@@ -84,7 +178,13 @@ impl BusHandle {
     /// Stop the bus: wait for a pending reply, write the final packets, let them leave the
     /// wire, close the port. Returns when the driver has stopped.
     pub async fn shutdown(&self, leave: ShutdownForce) {
-        let _ = self.commands.send(Command::Shutdown(leave));
+        let shared = &self.owners.shared;
+        {
+            let mut core = shared.core();
+            core.master.shutdown(leave);
+            core.flush();
+        }
+        shared.wake.notify_one();
         let mut finished = self.finished.clone();
         let _ = finished.wait_for(|done| *done).await;
     }
@@ -100,15 +200,22 @@ impl BusHandle {
 pub fn spawn_bus(cfg: BusConfig, port: PathBuf) -> BusHandle {
     let name = cfg.name.clone();
     let master = BusMaster::new(cfg, Instant::now());
-    let (command_tx, command_rx) = mpsc::unbounded_channel();
     let (status_tx, status_rx) = watch::channel(master.status());
     let (event_tx, _) = broadcast::channel(EVENT_CAPACITY);
     let (finished_tx, finished_rx) = watch::channel(false);
+    let shared = Arc::new(Shared {
+        core: Mutex::new(Core {
+            master,
+            writer: None,
+            write_error: None,
+            armed: None,
+        }),
+        wake: Notify::new(),
+    });
     let driver = Driver {
-        master,
+        name: name.clone(),
+        shared: Arc::clone(&shared),
         path: port,
-        commands: command_rx,
-        commands_open: true,
         status: status_tx,
         events: event_tx.clone(),
         finished: finished_tx,
@@ -119,9 +226,8 @@ pub fn spawn_bus(cfg: BusConfig, port: PathBuf) -> BusHandle {
             runtime.spawn(driver.run());
         }
         Err(_) => {
-            let thread_name = format!("bus {name}");
             let spawned = std::thread::Builder::new()
-                .name(thread_name)
+                .name(format!("bus {name}"))
                 .spawn(move || {
                     match tokio::runtime::Builder::new_current_thread()
                         .enable_all()
@@ -138,25 +244,32 @@ pub fn spawn_bus(cfg: BusConfig, port: PathBuf) -> BusHandle {
     }
     BusHandle {
         name,
-        commands: command_tx,
+        owners: Arc::new(Owners { shared }),
         status: status_rx,
         events: event_tx,
         finished: finished_rx,
     }
 }
 
-/// Open `path` at `baud`, 8N1, no flow control, not exclusive (a pseudo-terminal in tests).
-fn open_port(path: &Path, baud: BaudRate) -> Result<SerialStream, tokio_serial::Error> {
-    let builder = tokio_serial::new(path.to_string_lossy(), baud.bits_per_second())
+/// Open `path` at `baud`, 8N1, no flow control, not exclusive (a pseudo-terminal in tests):
+/// the async read side, and a duplicate of the same open port for plain `write(2)` calls. The
+/// write side never waits: the open port is non-blocking (the read side makes it so, and the
+/// duplicate shares that setting).
+fn open_port(path: &Path, baud: BaudRate) -> Result<(SerialStream, File), tokio_serial::Error> {
+    let mut native = tokio_serial::new(path.to_string_lossy(), baud.bits_per_second())
         .data_bits(DataBits::Eight)
         .parity(Parity::None)
         .stop_bits(StopBits::One)
-        .flow_control(FlowControl::None);
-    #[allow(unused_mut)]
-    let mut port = SerialStream::open(&builder)?;
-    #[cfg(unix)]
-    let _ = port.set_exclusive(false);
-    Ok(port)
+        .flow_control(FlowControl::None)
+        .open_native()?;
+    let _ = native.set_exclusive(false);
+    let duplicate = native.try_clone_native()?;
+    // SAFETY: `into_raw_fd` hands over a valid, open descriptor that nothing else owns or
+    // closes any more (the duplicate made by `try_clone_native`); the `File` becomes its only
+    // owner.
+    let writer = unsafe { File::from_raw_fd(duplicate.into_raw_fd()) };
+    let reader = SerialStream::try_from(native)?;
+    Ok((reader, writer))
 }
 
 enum Exit {
@@ -165,10 +278,9 @@ enum Exit {
 }
 
 struct Driver {
-    master: BusMaster,
+    name: String,
+    shared: Arc<Shared>,
     path: PathBuf,
-    commands: mpsc::UnboundedReceiver<Command>,
-    commands_open: bool,
     status: watch::Sender<BusStatus>,
     events: broadcast::Sender<BusEvent>,
     finished: watch::Sender<bool>,
@@ -177,32 +289,43 @@ struct Driver {
 
 impl Driver {
     async fn run(mut self) {
-        let name = self.master.config().name.clone();
-        let baud = self.master.config().baud;
-        let reopen = self.master.config().port_reopen_backoff;
+        let name = self.name.clone();
+        let (baud, reopen) = {
+            let core = self.shared.core();
+            let cfg = core.master.config();
+            (cfg.baud, cfg.port_reopen_backoff)
+        };
         let mut backoff = Duration::ZERO;
         loop {
             match open_port(&self.path, baud) {
-                Ok(port) => {
+                Ok((reader, writer)) => {
                     backoff = Duration::ZERO;
                     tracing::info!(bus = %name, port = %self.path.display(), "serial port open at {baud}");
-                    self.master.handle_port_back(Instant::now());
-                    match self.serve(port).await {
+                    {
+                        let mut core = self.shared.core();
+                        core.master.handle_port_back(Instant::now());
+                        core.write_error = None;
+                        core.writer = Some(writer);
+                    }
+                    let exit = self.serve(reader).await;
+                    let mut core = self.shared.core();
+                    core.writer = None;
+                    match exit {
                         Exit::Shutdown => break,
                         Exit::PortLost(reason) => {
-                            self.master.handle_port_lost(reason, Instant::now());
+                            core.master.handle_port_lost(reason, Instant::now());
                         }
                     }
                 }
                 Err(e) => {
-                    self.master.handle_port_lost(
+                    self.shared.core().master.handle_port_lost(
                         format!("cannot open {}: {e}", self.path.display()),
                         Instant::now(),
                     );
                 }
             }
             self.publish(false);
-            if self.shutdown_requested() {
+            if self.shared.core().master.is_shut_down() || self.shutdown_requested() {
                 break;
             }
             backoff = reopen.after(backoff);
@@ -214,73 +337,48 @@ impl Driver {
         let _ = self.finished.send(true);
     }
 
+    /// A shutdown was asked for (it cannot complete without a port).
     fn shutdown_requested(&self) -> bool {
-        self.master.is_shut_down() || !self.commands_open
+        self.shared.core().master.shutdown_requested()
     }
 
-    /// Wait `wait` with the port closed, still taking goals. True when a shutdown arrived
-    /// (nothing can be written without a port, so the driver stops).
+    /// Wait `wait` with the port closed, still taking goals. True when a shutdown arrived.
     async fn wait_offline(&mut self, wait: Duration) -> bool {
         let until = tokio::time::Instant::now() + wait;
         loop {
             tokio::select! {
                 _ = tokio::time::sleep_until(until) => return false,
-                cmd = self.commands.recv(), if self.commands_open => {
-                    match cmd {
-                        Some(Command::Shutdown(leave)) => {
-                            self.master.shutdown(leave);
-                            return true;
-                        }
-                        Some(c) => self.apply(c),
-                        None => {
-                            self.commands_open = false;
-                            return true;
-                        }
-                    }
-                }
+                _ = self.shared.wake.notified() => {}
             }
-            self.master.handle_timeout(Instant::now());
+            self.shared.core().master.handle_timeout(Instant::now());
             self.publish(false);
-        }
-    }
-
-    /// Hand every goal waiting in the channel to the bus master.
-    fn drain_commands(&mut self) {
-        loop {
-            match self.commands.try_recv() {
-                Ok(c) => self.apply(c),
-                Err(mpsc::error::TryRecvError::Empty) => return,
-                Err(mpsc::error::TryRecvError::Disconnected) => {
-                    if self.commands_open {
-                        self.commands_open = false;
-                        self.master.shutdown(ShutdownForce::AsIs);
-                    }
-                    return;
-                }
+            if self.shutdown_requested() {
+                return true;
             }
         }
     }
 
-    fn apply(&mut self, command: Command) {
-        match command {
-            Command::Goal(id, goal) => self.master.set_goal(id, goal, Instant::now()),
-            Command::Shutdown(leave) => self.master.shutdown(leave),
-        }
-    }
-
-    /// Publish the status, then the events: whoever reacts to an event finds a status at
-    /// least as new as the event.
+    /// Publish the status (when it changed, or every [`STATUS_REFRESH`]), then the events:
+    /// whoever reacts to an event finds a status at least as new as the event.
     fn publish(&mut self, force: bool) {
         let now = Instant::now();
-        if self.master.take_changed()
-            || force
-            || now.saturating_duration_since(self.published_at) >= STATUS_REFRESH
-        {
+        let mut events = Vec::new();
+        let status = {
+            let mut core = self.shared.core();
+            while let Some(event) = core.master.poll_event() {
+                events.push(event);
+            }
+            let due = core.master.take_changed()
+                || force
+                || now.saturating_duration_since(self.published_at) >= STATUS_REFRESH;
+            due.then(|| core.master.status_at(now))
+        };
+        if let Some(status) = status {
             self.published_at = now;
-            self.status.send_replace(self.master.status_at(now));
+            self.status.send_replace(status);
         }
-        while let Some(event) = self.master.poll_event() {
-            let bus = &self.master.config().name;
+        for event in events {
+            let bus = &self.name;
             match &event {
                 BusEvent::ServoOnline { .. }
                 | BusEvent::ServoBack { .. }
@@ -297,46 +395,47 @@ impl Driver {
     async fn serve(&mut self, mut port: SerialStream) -> Exit {
         let mut buf = [0u8; 512];
         loop {
-            // Goals that arrived meanwhile (e.g. while the reply just read was on the wire)
-            // count before the next packet is chosen.
-            self.drain_commands();
-            while let Some(tx) = self.master.poll_transmit(Instant::now()) {
-                if let Err(e) = port.write_all(&tx.bytes).await {
-                    return Exit::PortLost(format!("write failed: {e}"));
+            let (deadline, wire_idle_at) = {
+                let mut core = self.shared.core();
+                core.flush();
+                if let Some(reason) = core.write_error.take() {
+                    return Exit::PortLost(reason);
                 }
-            }
+                let done = core.master.is_shut_down();
+                let deadline = (!done).then(|| core.master.poll_timeout()).flatten();
+                core.armed = deadline;
+                (deadline, done.then(|| core.master.wire_idle_at()))
+            };
             self.publish(false);
-            if self.master.is_shut_down() {
-                let _ = port.flush().await;
-                tokio::time::sleep_until(self.master.wire_idle_at().into()).await;
+            if let Some(idle) = wire_idle_at {
+                // Let the final packets leave the wire before the port closes.
+                tokio::time::sleep_until(idle.into()).await;
                 return Exit::Shutdown;
             }
-            let sleep_to = self
-                .master
-                .poll_timeout()
+            // Wake at least every STATUS_REFRESH: goals set by other threads change the status
+            // without waking the driver.
+            let refresh = tokio::time::Instant::now() + STATUS_REFRESH;
+            let sleep_to = deadline
                 .map(tokio::time::Instant::from_std)
-                .unwrap_or_else(|| tokio::time::Instant::now() + Duration::from_secs(3600));
+                .map_or(refresh, |d| d.min(refresh));
             tokio::select! {
                 biased;
                 read = port.read(&mut buf) => match read {
                     Ok(0) => return Exit::PortLost("end of file".into()),
                     Ok(n) => {
                         let now = Instant::now();
-                        self.master.handle_input(buf.get(..n).unwrap_or_default(), now);
+                        let mut core = self.shared.core();
+                        core.master.handle_input(buf.get(..n).unwrap_or_default(), now);
+                        // A completed reply frees the bus: write what is due in this turn.
+                        core.flush();
                     }
                     Err(e) if matches!(e.kind(), std::io::ErrorKind::Interrupted | std::io::ErrorKind::WouldBlock) => {}
                     Err(e) => return Exit::PortLost(format!("read failed: {e}")),
                 },
-                cmd = self.commands.recv(), if self.commands_open => match cmd {
-                    Some(c) => self.apply(c),
-                    None => {
-                        self.commands_open = false;
-                        self.master.shutdown(ShutdownForce::AsIs);
-                    }
-                },
+                _ = self.shared.wake.notified() => {}
                 _ = tokio::time::sleep_until(sleep_to) => {}
             }
-            self.master.handle_timeout(Instant::now());
+            self.shared.core().master.handle_timeout(Instant::now());
         }
     }
 }

@@ -24,4 +24,6 @@ pub enum ShutdownForce {
     AsIs,
     /// Switch every servo's force OFF.
     Off,
+    /// Switch every servo to brake (the rod moves by hand with light resistance).
+    Brake,
 }

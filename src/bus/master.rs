@@ -519,7 +519,11 @@ impl BusMaster {
                     None
                 }
             }
-            ShutdownForce::Off => {
+            ShutdownForce::Off | ShutdownForce::Brake => {
+                let (mode, state) = match sd.leave {
+                    ShutdownForce::Brake => (ForceMode::Brake, ForceState::Brake),
+                    _ => (ForceMode::Off, ForceState::Off),
+                };
                 let next = self.servos[sd.next.min(self.servos.len())..]
                     .iter()
                     .position(|s| !matches!(s.phase, Phase::WrongModel { .. }))
@@ -529,9 +533,9 @@ impl BusMaster {
                         sd.next = i + 1;
                         let s = &mut self.servos[i];
                         let id = s.id();
-                        s.force = ForceState::Off;
+                        s.force = state;
                         s.sent = None;
-                        let bytes = ShortPacket::force(id.into(), ForceMode::Off).to_bytes();
+                        let bytes = ShortPacket::force(id.into(), mode).to_bytes();
                         Some(self.emit(bytes, TxKind::Final(Some(id)), now))
                     }
                     None => {
@@ -624,6 +628,11 @@ impl BusMaster {
                 done: false,
             });
         }
+    }
+
+    /// Whether [`BusMaster::shutdown`] was called.
+    pub fn shutdown_requested(&self) -> bool {
+        self.shutdown.is_some()
     }
 
     /// Whether every final packet has been handed out (after [`BusMaster::shutdown`]).

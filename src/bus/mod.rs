@@ -8,7 +8,7 @@
 //!   sleeping. [`servo`] is its per-servo record (start-up phase, force, goals, stall watch).
 //! - [`driver`]: the thin tokio shell ([`spawn_bus`], [`BusHandle`]) that runs one bus master
 //!   over a `tokio-serial` port, reopening the port when it disappears. Several buses run side
-//!   by side, one driver each.
+//!   by side, one driver each. It never decides what to send; it carries bytes and time.
 //!
 //! Plain data: [`config`] (what the bus is), [`goal`] (what is asked of a servo), [`status`]
 //! (what is known of it), [`event`] (what happened), [`transmit`] (what to write next).
@@ -36,6 +36,14 @@
 //!   drawing at least the configured current, for the configured time, is reported stalled.
 //!
 //! # Deviations from the API sketch the bridge was planned against
+//! - [`BusHandle::set_goals`] (added) takes the goals of several servos at once (every channel
+//!   of one autopilot message) and, when no reply is pending, writes their one long packet
+//!   from the caller's thread before returning: the fastest path from a goal to the wire.
+//!   [`BusHandle::set_goal`] wakes the driver task, which writes within its wake-up time; goals
+//!   set one by one meanwhile share one long packet. The goal channel of the sketch is
+//!   replaced by a mutex around the bus master and the port's write side (see [`driver`]).
+//! - The driver publishes the status when it changes and at least every 100 ms, then the
+//!   events (so a reader reacting to an event finds a status at least as new).
 //! - `BusMaster::status()` measures ages to the latest time handed in;
 //!   [`BusMaster::status_at`] takes the time explicitly. [`ServoStatus`] also carries
 //!   `telemetry_at` so a reader can compute the age at its own time.
@@ -57,6 +65,10 @@
 //!   `force_retry_backoff` (0.5 s to 8 s), `port_reopen_backoff` (100 ms to 2 s),
 //!   `assumed_return_delay` (5 ms, until register 7 is read), `telemetry_min_interval` (0),
 //!   `verify_interval` (1 s).
+//! - [`BusMaster`] also has `status_at`, `take_changed`, `reply_pending`, `counters`,
+//!   `handle_port_lost`/`handle_port_back` (the driver reports the port), `shutdown_requested`,
+//!   `is_shut_down` and `wire_idle_at`. A long packet is never queued more than one frame ahead
+//!   of the wire.
 
 pub mod config;
 pub mod driver;

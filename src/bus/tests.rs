@@ -1230,6 +1230,18 @@ fn shutdown_waits_for_the_pending_reply_then_switches_force_off() {
     );
     assert_eq!(rig.servo(2).position, -5);
     assert_eq!(rig.servo(2).force, 1);
+
+    let mut rig = Rig::online_with_force(&[1, 2]);
+    rig.run(ms(1));
+    rig.m.shutdown(ShutdownForce::Brake);
+    let from = rig.log.len();
+    rig.run(ms(20));
+    assert_eq!(
+        rig.kinds_since(from),
+        vec![TxKind::Final(Some(id(1))), TxKind::Final(Some(id(2)))]
+    );
+    assert_eq!(rig.servo(1).force, 2);
+    assert_eq!(rig.servo(2).force, 2);
 }
 
 #[test]
