@@ -201,27 +201,35 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
         }
     }
     let mut latencies_us = Vec::new();
+    // A message's goal is on the wire when a packet after its send carries it.
+    let carried: Vec<Option<Instant>> = sends
+        .iter()
+        .map(|(t, goal)| {
+            packets
+                .iter()
+                .find(|(at, g)| {
+                    *at >= *t && *g == *goal && at.duration_since(*t) < Duration::from_secs(1)
+                })
+                .map(|(at, _)| *at)
+        })
+        .collect();
+    // Not carried: superseded when a later message's goal reached the wire (the bus master
+    // keeps only the newest goal per servo), lost when none did.
+    let mut later_on_wire = false;
+    let mut superseded_flags = vec![false; sends.len()];
+    for k in (0..sends.len()).rev() {
+        superseded_flags[k] = carried[k].is_none() && later_on_wire;
+        later_on_wire |= carried[k].is_some();
+    }
     let (mut on_wire, mut superseded, mut lost) = (0, 0, 0);
-    for (k, (t, goal)) in sends.iter().enumerate() {
-        let carried = packets.iter().find(|(at, g)| {
-            *at >= *t && *g == *goal && at.duration_since(*t) < Duration::from_secs(1)
-        });
-        match carried {
-            Some((at, _)) => {
+    for (k, (t, _)) in sends.iter().enumerate() {
+        match carried[k] {
+            Some(at) => {
                 on_wire += 1;
                 latencies_us.push(at.duration_since(*t).as_secs_f64() * 1e6);
             }
-            None => {
-                // Superseded: the next message's goal went out instead (or the run ended first).
-                let next_sent = sends
-                    .get(k + 1)
-                    .map(|(nt, ng)| packets.iter().any(|(at, g)| *at >= *nt && g == ng));
-                if next_sent.unwrap_or(true) {
-                    superseded += 1;
-                } else {
-                    lost += 1;
-                }
-            }
+            None if superseded_flags[k] => superseded += 1,
+            None => lost += 1,
         }
     }
     let _ = Command::new("kill")

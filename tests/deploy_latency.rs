@@ -1,37 +1,14 @@
 //! The start-up check of USB RS485 adapters' latency timer, against a fake sysfs tree.
 
+mod tempdir;
+
 use lj9da_bridge::deploy::{
     LatencyCheck, LatencyFixer, LoweredBy, ReportOnly, check_latency, check_latency_in,
     check_latency_with, latency_fix,
 };
 use std::io;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU32, Ordering};
-
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> Self {
-        static N: AtomicU32 = AtomicU32::new(0);
-        let path = std::env::temp_dir().join(format!(
-            "lj9da-{tag}-{}-{}",
-            std::process::id(),
-            N.fetch_add(1, Ordering::Relaxed)
-        ));
-        let _ = std::fs::remove_dir_all(&path);
-        std::fs::create_dir_all(&path).unwrap();
-        TempDir(path)
-    }
-    fn path(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+use tempdir::TempDir;
 
 /// A fake `/sys` and `/dev`: `ttyUSB0` is an FTDI adapter with `latency` in its
 /// `latency_timer`, reached through a `/dev/serial/by-id` symlink.

@@ -1,6 +1,8 @@
 //! The flight record format: every record kind round-trips through the recorder and the
 //! reader, and a damaged file reads back everything before the damage, with a note.
 
+mod tempdir;
+
 use lj9da_bridge::bus::{Goal, Health};
 use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, Telemetry};
 use lj9da_bridge::record::format::{
@@ -11,34 +13,8 @@ use lj9da_bridge::record::{
 };
 use proptest::prelude::*;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
-
-/// A fresh directory under the system's temporary folder, removed when dropped.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> Self {
-        static N: AtomicU32 = AtomicU32::new(0);
-        let path = std::env::temp_dir().join(format!(
-            "lj9da-{tag}-{}-{}",
-            std::process::id(),
-            N.fetch_add(1, Ordering::Relaxed)
-        ));
-        let _ = std::fs::remove_dir_all(&path);
-        std::fs::create_dir_all(&path).unwrap();
-        TempDir(path)
-    }
-    fn path(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+use tempdir::TempDir;
 
 fn servos() -> Vec<RecordServo> {
     vec![

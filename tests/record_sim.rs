@@ -3,39 +3,15 @@
 //! watch, bus events from its event channel. Then the summary is checked against what the
 //! simulation did.
 
+mod tempdir;
+
 use lj9da_bridge::bus::{BusConfig, Goal, ServoSetup, ShutdownForce, spawn_bus};
 use lj9da_bridge::protocol::{BaudRate, MmCenti, ServoId};
 use lj9da_bridge::record::format::RecordServo;
 use lj9da_bridge::record::{RecordBody, RecordLimits, Recorder, StatusFeed, read_record, summary};
 use lj9da_sim::{SimBus, SimConfig};
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
-
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> Self {
-        static N: AtomicU32 = AtomicU32::new(0);
-        let path = std::env::temp_dir().join(format!(
-            "lj9da-{tag}-{}-{}",
-            std::process::id(),
-            N.fetch_add(1, Ordering::Relaxed)
-        ));
-        let _ = std::fs::remove_dir_all(&path);
-        std::fs::create_dir_all(&path).unwrap();
-        TempDir(path)
-    }
-    fn path(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+use tempdir::TempDir;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_simulated_run_is_recorded_and_its_summary_matches_the_simulation() {

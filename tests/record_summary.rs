@@ -1,6 +1,8 @@
 //! Looking at a record: the summary's figures against a synthetic run whose figures are
 //! known, the CSV export, the SVG pictures, and the `record` subcommand.
 
+mod tempdir;
+
 use lj9da_bridge::bus::{Goal, Health};
 use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, Telemetry};
 use lj9da_bridge::record::cli::{RecordCommand, run};
@@ -8,34 +10,8 @@ use lj9da_bridge::record::csv::{CSV_HEADER, write_csv};
 use lj9da_bridge::record::format::{RecordHeader, RecordServo, encode_header, encode_record};
 use lj9da_bridge::record::plot::plot;
 use lj9da_bridge::record::{Record, RecordBody, Recording, summary};
-use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicU32, Ordering};
-
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> Self {
-        static N: AtomicU32 = AtomicU32::new(0);
-        let path = std::env::temp_dir().join(format!(
-            "lj9da-{tag}-{}-{}",
-            std::process::id(),
-            N.fetch_add(1, Ordering::Relaxed)
-        ));
-        let _ = std::fs::remove_dir_all(&path);
-        std::fs::create_dir_all(&path).unwrap();
-        TempDir(path)
-    }
-    fn path(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+use tempdir::TempDir;
 
 /// One sample of the synthetic run.
 struct Sample {
