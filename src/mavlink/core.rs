@@ -369,7 +369,6 @@ impl BridgeCore {
              On ArduPilot the limit is 0.8 × SCHED_LOOP_RATE: raise SCHED_LOOP_RATE, or lower \
              [mavlink] output_rate_hz"
         );
-        tracing::warn!("{note}");
         self.notes.push(note);
         // Ask again at once, at the lower rate.
         self.next_stream_request = self.started;
