@@ -25,6 +25,7 @@
 use super::config::BusConfig;
 use super::event::BusEvent;
 use super::goal::{Goal, ShutdownForce};
+use super::rhythm::GoalRhythm;
 use super::servo::{Phase, SentGoal, Servo, Transaction, ms10_ceil};
 use super::status::{BusCounters, BusStatus, ForceState};
 use super::transmit::{Transmit, TxKind};
@@ -72,6 +73,8 @@ pub struct BusMaster {
     /// The latest time handed in.
     now: Instant,
     port_open: bool,
+    /// When goals arrive, so that no poll is started just before the next one.
+    rhythm: GoalRhythm,
     /// Send a long packet with every commanded servo even if no goal changed.
     resend_all: bool,
     shutdown: Option<Shutdown>,
@@ -101,10 +104,16 @@ impl BusMaster {
             counters: BusCounters::default(),
             now,
             port_open: true,
+            rhythm: GoalRhythm::default(),
             resend_all: false,
             shutdown: None,
             changed: true,
         }
+    }
+
+    /// The measured period of incoming goal messages, once known.
+    pub fn goal_period(&self) -> Option<Duration> {
+        self.rhythm.period()
     }
 
     pub fn config(&self) -> &BusConfig {
@@ -132,6 +141,9 @@ impl BusMaster {
         };
         self.counters.goals_received += 1;
         self.changed = true;
+        if matches!(goal, Goal::Position(_)) {
+            self.rhythm.goal_at(now);
+        }
         let s = &mut self.servos[i];
         let waiting = s.unsent_position();
         s.desired = Some(goal);
@@ -324,6 +336,9 @@ impl BusMaster {
             }
             return self.long_packet(now);
         }
+        if self.rhythm.hold_until(now, self.poll_busy()).is_some() {
+            return None;
+        }
         let due = |at: Option<Instant>| at.is_none_or(|t| t <= now);
         if let Some((i, mode)) = self.servos.iter().enumerate().find_map(|(i, s)| {
             s.force_due()
@@ -343,6 +358,18 @@ impl BusMaster {
             }
         }
         None
+    }
+
+    /// How long a telemetry poll holds the bus: request and reply on the wire, the longest
+    /// return delay of the bus, and a little for the servo and the adapter.
+    fn poll_busy(&self) -> Duration {
+        let return_delay = self
+            .servos
+            .iter()
+            .map(|s| s.return_delay.unwrap_or(self.cfg.assumed_return_delay))
+            .max()
+            .unwrap_or_default();
+        self.cfg.wire_time(8 + 26) + return_delay + Duration::from_micros(300)
     }
 
     /// How far ahead of the wire a long packet may be queued: one frame of the largest size.
@@ -566,7 +593,8 @@ impl BusMaster {
                     .map_or(self.now, |t| t.max(self.now)),
             );
         }
-        self.servos
+        let next = self
+            .servos
             .iter()
             .flat_map(|s| {
                 let force = s.force_due().map(|(at, _)| at.unwrap_or(self.now));
@@ -574,7 +602,15 @@ impl BusMaster {
                 [force, poll]
             })
             .flatten()
-            .min()
+            .min()?;
+        // A request due inside a goal's arrival window waits for the window to close (a goal
+        // arriving meanwhile is taken at once through `set_goal`).
+        let at = next.max(self.now);
+        Some(
+            self.rhythm
+                .hold_until(at, self.poll_busy())
+                .map_or(next, |closes| closes.max(next)),
+        )
     }
 
     /// The next event, oldest first.

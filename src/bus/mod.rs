@@ -75,6 +75,7 @@ pub mod driver;
 pub mod event;
 pub mod goal;
 pub mod master;
+pub mod rhythm;
 mod servo;
 pub mod status;
 pub mod transmit;

@@ -1292,3 +1292,37 @@ mod properties {
         }
     }
 }
+
+#[test]
+fn periodic_goals_find_the_bus_free_and_telemetry_keeps_its_rate() {
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    let period = ms(20);
+    let mut delays = Vec::new();
+    let polls_before = rig.m.counters().polls;
+    let t_start = rig.t;
+    for k in 0..100i16 {
+        let at = rig.t;
+        for n in 1..=4u8 {
+            rig.set_goal(n, Goal::Position(MmCenti(k * 10 + i16::from(n))));
+        }
+        let from = rig.log.len();
+        rig.run(period);
+        let sent = rig.sent_since(from);
+        let command = sent
+            .iter()
+            .find(|s| s.tx.kind == TxKind::Command)
+            .expect("a frame");
+        if k >= 10 {
+            delays.push(command.at.duration_since(at));
+        }
+    }
+    assert_eq!(rig.m.goal_period(), Some(period));
+    let polls = rig.m.counters().polls - polls_before;
+    let seconds = rig.t.duration_since(t_start).as_secs_f64();
+    // Once the rhythm is known, every frame leaves the moment its goals arrive: no poll holds
+    // the bus then.
+    assert!(delays.iter().all(|d| *d == Duration::ZERO), "{delays:?}");
+    // ... and telemetry still runs at more than 60 Hz per servo.
+    let per_servo_hz = polls as f64 / seconds / 4.0;
+    assert!(per_servo_hz > 60.0, "{per_servo_hz:.1} Hz per servo");
+}
