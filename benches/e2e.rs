@@ -14,6 +14,7 @@
 //! sets the length of each case, default 6 s).
 
 use lj9da_bridge::config::Config;
+use lj9da_bridge::mavlink::outputs::servo_output_raw;
 use lj9da_sim::{BusEvent, SimBus, SimConfig};
 use mavlink::dialects::common::*;
 use mavlink::{MavConnection, MavHeader};
@@ -259,19 +260,7 @@ fn outputs(servos: usize, i: usize) -> MavMessage {
     for (s, r) in raw.iter_mut().enumerate().take(servos) {
         *r = pwm(s + 1, i);
     }
-    MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
-        time_usec: 0,
-        servo1_raw: raw[0],
-        servo2_raw: raw[1],
-        servo3_raw: raw[2],
-        servo4_raw: raw[3],
-        servo5_raw: raw[4],
-        servo6_raw: raw[5],
-        servo7_raw: raw[6],
-        servo8_raw: raw[7],
-        port: 0,
-        ..Default::default()
-    })
+    servo_output_raw(0, raw, 0)
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {

@@ -2,6 +2,7 @@
 
 use lj9da_bridge::bus::Goal;
 use lj9da_bridge::config::Config;
+use lj9da_bridge::mavlink::outputs::servo_output_raw;
 use lj9da_bridge::mavlink::{
     BridgeCore, BridgeEvent, Outgoing, ServoEvent, ServoReport, ServoState,
 };
@@ -79,26 +80,7 @@ fn outputs(port: u8, values: &[(usize, u16)]) -> MavMessage {
     for (i, v) in values {
         raw[*i - 1] = *v;
     }
-    MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
-        time_usec: 0,
-        servo1_raw: raw[0],
-        servo2_raw: raw[1],
-        servo3_raw: raw[2],
-        servo4_raw: raw[3],
-        servo5_raw: raw[4],
-        servo6_raw: raw[5],
-        servo7_raw: raw[6],
-        servo8_raw: raw[7],
-        port,
-        servo9_raw: raw[8],
-        servo10_raw: raw[9],
-        servo11_raw: raw[10],
-        servo12_raw: raw[11],
-        servo13_raw: raw[12],
-        servo14_raw: raw[13],
-        servo15_raw: raw[14],
-        servo16_raw: raw[15],
-    })
+    servo_output_raw(port, raw, 0)
 }
 
 fn commands(c: &mut BridgeCore) -> Vec<(usize, Goal)> {

@@ -6,7 +6,7 @@
 //! sender leaves them out), `port = 1` carries 17–32. ACTUATOR_OUTPUT_STATUS carries up to 32
 //! outputs in one message.
 
-use mavlink::dialects::common::{ACTUATOR_OUTPUT_STATUS_DATA, SERVO_OUTPUT_RAW_DATA};
+use mavlink::dialects::common::{ACTUATOR_OUTPUT_STATUS_DATA, MavMessage, SERVO_OUTPUT_RAW_DATA};
 
 /// The highest output channel an autopilot reports.
 pub const MAX_CHANNEL: u8 = 32;
@@ -69,6 +69,31 @@ pub fn from_servo_output_raw(m: &SERVO_OUTPUT_RAW_DATA) -> ChannelValues {
     }
 }
 
+/// A SERVO_OUTPUT_RAW carrying `raw[0..16]` as the 16 channels of `port` (the inverse of
+/// [`from_servo_output_raw`]); for the simulated autopilot, tests and benchmarks.
+pub fn servo_output_raw(port: u8, raw: [u16; 16], time_usec: u32) -> MavMessage {
+    MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
+        time_usec,
+        servo1_raw: raw[0],
+        servo2_raw: raw[1],
+        servo3_raw: raw[2],
+        servo4_raw: raw[3],
+        servo5_raw: raw[4],
+        servo6_raw: raw[5],
+        servo7_raw: raw[6],
+        servo8_raw: raw[7],
+        port,
+        servo9_raw: raw[8],
+        servo10_raw: raw[9],
+        servo11_raw: raw[10],
+        servo12_raw: raw[11],
+        servo13_raw: raw[12],
+        servo14_raw: raw[13],
+        servo15_raw: raw[14],
+        servo16_raw: raw[15],
+    })
+}
+
 /// Channels of an ACTUATOR_OUTPUT_STATUS (values in µs for PWM outputs). PX4 fills `active`
 /// with a count rather than the bitmask the spec defines; either reading is accepted: a
 /// channel counts as present when its bit is set or its index is below the count. A value
@@ -114,6 +139,19 @@ mod tests {
         assert_eq!(v.get(1), None);
         m.port = 2;
         assert!(from_servo_output_raw(&m).is_empty());
+    }
+
+    #[test]
+    fn servo_output_raw_is_the_inverse_of_reading_it() {
+        let raw: [u16; 16] = std::array::from_fn(|i| 1000 + i as u16);
+        let MavMessage::SERVO_OUTPUT_RAW(m) = servo_output_raw(1, raw, 7) else {
+            panic!("a SERVO_OUTPUT_RAW")
+        };
+        let v = from_servo_output_raw(&m);
+        assert_eq!(
+            v.iter().collect::<Vec<_>>(),
+            (17..=32).zip(raw).collect::<Vec<_>>()
+        );
     }
 
     #[test]

@@ -9,9 +9,10 @@
 //!
 //! It can stop and resume its output stream on request, for failsafe tests.
 
+use crate::mavlink::outputs::servo_output_raw;
 use mavlink::dialects::common::{
     COMMAND_ACK_DATA, HEARTBEAT_DATA, MavAutopilot, MavCmd, MavMessage, MavModeFlag, MavResult,
-    MavState, MavType, SERVO_OUTPUT_RAW_DATA,
+    MavState, MavType,
 };
 use mavlink::{AsyncMavConnection, MavHeader};
 use std::sync::Arc;
@@ -208,26 +209,7 @@ pub async fn run(
                         raw[usize::from(c) - 1] = sweep_us(c, t);
                     }
                 }
-                let msg = MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
-                    time_usec: started.elapsed().as_micros() as u32,
-                    servo1_raw: raw[0],
-                    servo2_raw: raw[1],
-                    servo3_raw: raw[2],
-                    servo4_raw: raw[3],
-                    servo5_raw: raw[4],
-                    servo6_raw: raw[5],
-                    servo7_raw: raw[6],
-                    servo8_raw: raw[7],
-                    port: 0,
-                    servo9_raw: raw[8],
-                    servo10_raw: raw[9],
-                    servo11_raw: raw[10],
-                    servo12_raw: raw[11],
-                    servo13_raw: raw[12],
-                    servo14_raw: raw[13],
-                    servo15_raw: raw[14],
-                    servo16_raw: raw[15],
-                });
+                let msg = servo_output_raw(0, raw, started.elapsed().as_micros() as u32);
                 if conn.send(&header, &msg).await.is_ok() {
                     handle.inner.outputs_sent.fetch_add(1, Ordering::SeqCst);
                 }
