@@ -234,10 +234,13 @@ impl BusMaster {
             }
             Transaction::Telemetry => {
                 self.counters.telemetry_replies += 1;
-                if let Ok(t) = reply.telemetry()
-                    && matches!(s.phase, Phase::Ready | Phase::FirstTelemetry)
-                {
-                    s.on_telemetry(t, now, cfg, &mut events);
+                if let Ok(t) = reply.telemetry() {
+                    if matches!(s.phase, Phase::Ready | Phase::FirstTelemetry) {
+                        s.on_telemetry(t, now, cfg, &mut events);
+                    } else {
+                        // E.g. the reply that showed a restart: its values are current.
+                        s.store_reading(t, now);
+                    }
                 }
             }
         }

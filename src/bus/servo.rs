@@ -427,6 +427,15 @@ impl Servo {
     }
 
     /// Registers 42–59 arrived.
+    /// Keep a telemetry reading as the servo's latest, whatever its start-up phase: the values
+    /// are true even while it is being re-initialised.
+    pub fn store_reading(&mut self, t: Telemetry, now: Instant) {
+        self.telemetry = Some(t);
+        self.telemetry_at = Some(now);
+        self.telemetry_count += 1;
+        self.last_position = Some(t.present_position);
+    }
+
     pub fn on_telemetry(
         &mut self,
         t: Telemetry,
@@ -435,10 +444,7 @@ impl Servo {
         events: &mut Vec<BusEvent>,
     ) {
         let id = self.id();
-        self.telemetry = Some(t);
-        self.telemetry_at = Some(now);
-        self.telemetry_count += 1;
-        self.last_position = Some(t.present_position);
+        self.store_reading(t, now);
         let error = self
             .sent
             .map(|s| (i32::from(t.present_position.0) - i32::from(s.position.0)).unsigned_abs());

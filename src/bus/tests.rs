@@ -763,8 +763,19 @@ fn a_temperature_error_is_reported_and_force_on_is_not_retried() {
         "still watched"
     );
     assert_eq!(rig.servo(2).position, 299, "the other servo keeps working");
-    // Power-cycled and cool again: re-initialised, force ON, goal sent.
+    // Power-cycled and cool again: re-initialised, force ON, goal sent. The reply that shows
+    // the restart already carries the new temperature, and the status has it at once.
+    rig.servo(1).temperature = 31;
     rig.servo(1).power_cycle();
+    let restart_seen = rig.events.len();
+    while !rig.events[restart_seen..].contains(&BusEvent::ServoRestarted { id: id(1) }) {
+        rig.run(ms(1));
+    }
+    let t = rig.m.status().servo(id(1)).unwrap().telemetry.unwrap();
+    assert_eq!(
+        t.present_temperature.0, 31,
+        "the restart reply's reading is kept"
+    );
     rig.run(ms(3000));
     assert!(
         rig.events[ev_from..].contains(&BusEvent::ServoRestarted { id: id(1) }),
