@@ -48,6 +48,23 @@ impl Default for AutopilotConfig {
     }
 }
 
+impl AutopilotConfig {
+    /// The simulated autopilot for a mapping: it sends to `udpout:127.0.0.1:<port>` and drives
+    /// the channels (1–16) the mapping's servos listen to.
+    pub fn for_mapping(cfg: &crate::config::Config, port: u16) -> Self {
+        AutopilotConfig {
+            connection: format!("udpout:127.0.0.1:{port}"),
+            channels: cfg
+                .servos
+                .iter()
+                .map(|s| s.channel)
+                .filter(|c| *c <= 16)
+                .collect(),
+            ..Default::default()
+        }
+    }
+}
+
 /// Control and counters of a running simulated autopilot.
 #[derive(Debug, Clone, Default)]
 pub struct AutopilotHandle {

@@ -83,16 +83,7 @@ pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
         None => {
             let port = free_udp_port().map_err(SitlError::NoPort)?;
             cfg.mavlink.connection = format!("udpin:127.0.0.1:{port}");
-            let ap = autopilot::AutopilotConfig {
-                connection: format!("udpout:127.0.0.1:{port}"),
-                channels: cfg
-                    .servos
-                    .iter()
-                    .map(|s| s.channel)
-                    .filter(|c| *c <= 16)
-                    .collect(),
-                ..Default::default()
-            };
+            let ap = autopilot::AutopilotConfig::for_mapping(&cfg, port);
             let stop = stop_rx.clone();
             autopilot_task = Some(tokio::spawn(autopilot::run(
                 ap,

@@ -237,16 +237,7 @@ impl Chain {
         let handle = AutopilotHandle::default();
         let mut tasks = vec![gcs_task];
         if autopilot {
-            let ap = AutopilotConfig {
-                connection: format!("udpout:127.0.0.1:{autopilot_port}"),
-                channels: cfg
-                    .servos
-                    .iter()
-                    .map(|s| s.channel)
-                    .filter(|c| *c <= 16)
-                    .collect(),
-                ..Default::default()
-            };
+            let ap = AutopilotConfig::for_mapping(&cfg, autopilot_port);
             let h = handle.clone();
             tasks.push(tokio::spawn(async move {
                 let _ = autopilot::run(ap, h, stop_rx).await;
