@@ -11,7 +11,7 @@
 //!
 //! Every message gives servo 1 a goal that no other message in the window has, so each message
 //! is matched to the packet that carried it. Run: `cargo bench --bench e2e` (`E2E_SECONDS=N`
-//! sets the length of each case, default 6 s).
+//! sets the length of each case, default 6 s; `E2E_CASES=4x50,8x400` runs only those cases).
 
 use lj9da_bridge::config::Config;
 use lj9da_bridge::mavlink::outputs::servo_output_raw;
@@ -325,6 +325,14 @@ fn main() {
             rate_hz: 400.0,
         },
     ] {
+        // `E2E_CASES=4x50,8x400` runs only those cases (e.g. while profiling one of them).
+        if let Ok(only) = std::env::var("E2E_CASES")
+            && !only
+                .split(',')
+                .any(|c| c.trim() == format!("{}x{}", case.servos, case.rate_hz))
+        {
+            continue;
+        }
         let mut o = run_case(&case, seconds);
         o.latencies_us.sort_by(f64::total_cmp);
         println!(

@@ -7,6 +7,7 @@
 
 use crate::bus::{
     BusConfig, BusEvent, BusHandle, BusStatus, Health, ServoSetup, ShutdownForce, spawn_bus,
+    spawn_bus_observed,
 };
 use crate::config::{Config, ExitAction};
 use crate::mavlink::reply_quality::{QualityChange, ReplyQuality};
@@ -68,7 +69,13 @@ struct Buses {
 }
 
 impl Buses {
-    fn spawn(cfg: &Config, ports: &HashMap<String, PathBuf>) -> Self {
+    /// Start every bus; with a flight record, each bus thread records its own statuses (every
+    /// telemetry sample, without waking another thread for it).
+    fn spawn(
+        cfg: &Config,
+        ports: &HashMap<String, PathBuf>,
+        record: Option<&RecordHandle>,
+    ) -> Self {
         let mut handles = Vec::new();
         for bus in &cfg.buses {
             let setups = cfg
@@ -91,7 +98,13 @@ impl Buses {
                 .cloned()
                 .unwrap_or_else(|| bus.port.clone());
             tracing::info!(bus = %bus.name, port = %port.display(), baud = %bus.baud, "opening bus");
-            handles.push(spawn_bus(bus_cfg, port));
+            handles.push(match record {
+                Some(r) => {
+                    let mut feed = StatusFeed::new(r.clone(), &RecordServo::from_config(cfg));
+                    spawn_bus_observed(bus_cfg, port, Box::new(move |s| feed.observe(s)))
+                }
+                None => spawn_bus(bus_cfg, port),
+            });
         }
         let servo_at = cfg
             .servos
@@ -267,11 +280,11 @@ pub async fn run(
         links.push(connect(gcs).await?);
     }
     tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links open");
-    let buses = Buses::spawn(&cfg, &ports);
-    let mut core = BridgeCore::new(cfg.clone(), Instant::now());
     let record = record_dir
         .filter(|_| cfg.record.enabled)
         .and_then(|dir| start_record(&cfg, &dir));
+    let buses = Buses::spawn(&cfg, &ports, record.as_ref());
+    let mut core = BridgeCore::new(cfg.clone(), Instant::now());
 
     let (msg_tx, mut msg_rx) = mpsc::channel::<(LinkId, MavHeader, MavMessage)>(1024);
     let mut readers = Vec::new();
@@ -302,15 +315,6 @@ pub async fn run(
             .clone()
             .map(|r| StatusFeed::new(r, &RecordServo::from_config(&cfg)));
         let bus_name = bus.name().to_string();
-        if let Some(mut feed) = feed.clone() {
-            let mut status = bus.watch_status();
-            readers.push(tokio::spawn(async move {
-                while status.changed().await.is_ok() {
-                    let s = status.borrow_and_update().clone();
-                    feed.observe(&s);
-                }
-            }));
-        }
         readers.push(tokio::spawn(async move {
             loop {
                 match events.recv().await {

@@ -1,24 +1,27 @@
-//! The thin tokio shell around one [`BusMaster`]: a serial port, a timer, goals in, status and
-//! events out.
+//! The thin shell around one [`BusMaster`]: a serial port, a clock, goals in, status and events
+//! out. One OS thread per bus.
 //!
-//! The bus master and the write side of the port sit together behind one mutex (the *core*).
-//! Packets that became due are written before the lock is let go: by
-//! [`BusHandle::set_goals`] in the caller's thread (the goals of one autopilot message reach the
-//! port within one system call, with no thread to wake first), and by the driver task when a
-//! reply completes (in the same turn that read its last byte), when a deadline passes, or when
-//! [`BusHandle::set_goal`] woke it (goals set one by one meanwhile share one long packet). Order on the wire
-//! is the order of the lock; the bus master alone decides what may be sent (never while a reply
-//! is pending).
+//! The bus master and the port sit together behind one mutex (the *core*). Packets that became
+//! due are written before the lock is let go: by [`BusHandle::set_goals`] in the caller's
+//! thread (the goals of one autopilot message reach the port within one system call, with no
+//! thread to wake first), and by the bus thread when a reply completes, when a deadline
+//! passes, or when [`BusHandle::set_goal`] woke it (goals set one by one meanwhile share one
+//! long packet). Order on the wire is the order of the lock; the bus master alone decides what
+//! may be sent (never while a reply is pending).
 //!
-//! The driver task (one per bus) reads the port, keeps the bus master's deadline (a caller wakes
-//! it only when that deadline moved), publishes the status (when it changed, at least every
-//! 100 ms) and the events, and reopens a port that fails or disappears with back-off
-//! (`port_reopen_backoff`, 100 ms doubling to 2 s by default); goals keep being accepted
-//! meanwhile.
+//! The bus thread reads the port on a clock, not on every byte: it sleeps until the bus master's
+//! next deadline, or until the awaited reply can be complete ([`BusMaster::reply_check_at`]),
+//! then reads whatever has arrived without blocking. A reply therefore costs one wake-up, not
+//! one per byte (at 115 200 bit/s a telemetry reply is 26 bytes; the bridge's CPU time is
+//! mostly wake-ups). The port is in no event loop, so bytes arriving do not wake anything. The
+//! thread also publishes the status (when it changed, at least every 100 ms) and the events,
+//! and reopens a port that fails or disappears with back-off (`port_reopen_backoff`, 100 ms
+//! doubling to 2 s by default); goals keep being accepted meanwhile. A port that fails while
+//! idle is noticed within 100 ms (the thread reads at least that often).
 //!
 //! This file must never decide what to send or when: it only carries bytes and time between the
 //! port and the bus master. It never panics: a port error is a lost port, a poisoned lock is
-//! taken over, a runtime that cannot start is logged.
+//! taken over, a thread that cannot start is logged.
 
 use super::config::BusConfig;
 use super::event::BusEvent;
@@ -26,61 +29,92 @@ use super::goal::{Goal, ShutdownForce};
 use super::master::BusMaster;
 use super::status::BusStatus;
 use crate::protocol::{BaudRate, ServoId};
+use nix::fcntl::{FcntlArg, OFlag, fcntl};
+use nix::poll::{PollFd, PollFlags, ppoll};
+use nix::sys::termios::{SetArg, SpecialCharacterIndices, Termios, tcgetattr, tcsetattr};
+use nix::sys::time::TimeSpec;
 use std::fs::File;
-use std::io::Write;
-use std::os::fd::{FromRawFd, IntoRawFd};
+use std::io::{Read, Write};
+use std::os::fd::{AsFd, AsRawFd, FromRawFd, IntoRawFd};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
-use tokio::io::AsyncReadExt;
-use tokio::sync::{Notify, broadcast, watch};
-use tokio_serial::{DataBits, FlowControl, Parity, SerialStream, StopBits};
+use tokio::sync::{broadcast, watch};
+use tokio_serial::{DataBits, FlowControl, Parity, StopBits};
 
 /// Events kept for a slow subscriber before it starts missing them.
 const EVENT_CAPACITY: usize = 256;
-/// The status is published when it changes, and at least this often (ages grow).
+/// The status is published when it changes, and at least this often (ages grow). The port is
+/// read at least this often too.
 const STATUS_REFRESH: Duration = Duration::from_millis(100);
+/// Timer slack of the bus thread: the default 50 µs is more than half a byte time at
+/// 115 200 bit/s.
+const TIMER_SLACK_NS: u64 = 1_000;
 
-/// The bus master and the port's write side, changed only together.
+/// Called in the bus thread with every status it publishes (see [`spawn_bus_observed`]).
+pub type StatusObserver = Box<dyn FnMut(&BusStatus) + Send>;
+
+/// The bus master and the port, changed only together.
 struct Core {
     master: BusMaster,
-    /// The write side of the open port (`None` while the port is away).
-    writer: Option<File>,
-    /// Why the last write failed; the driver then treats the port as lost.
+    /// The open port, read and written without blocking (`None` while the port is away).
+    port: Option<File>,
+    /// Why the last write failed; the bus thread then treats the port as lost.
     write_error: Option<String>,
-    /// The bus master's deadline the driver is sleeping on.
+    /// The bus master's deadline the bus thread is sleeping on.
     armed: Option<Instant>,
+    /// The bus thread has something to look at (a goal, a shutdown).
+    woken: bool,
 }
 
 impl Core {
     /// Write every packet the bus master has due now. A write that fails (or would block: the
     /// bus master never queues more than about two frames, so a full output buffer means the
-    /// port is stuck) closes the write side and leaves the reason for the driver.
+    /// port is stuck) closes the port and leaves the reason for the bus thread.
     fn flush(&mut self) {
-        let Some(writer) = self.writer.as_mut() else {
+        let Some(port) = self.port.as_mut() else {
             return;
         };
         while let Some(tx) = self.master.poll_transmit(Instant::now()) {
-            if let Err(e) = writer.write_all(&tx.bytes) {
+            if let Err(e) = port.write_all(&tx.bytes) {
                 self.write_error = Some(format!("write failed: {e}"));
-                self.writer = None;
+                self.port = None;
                 return;
             }
         }
     }
 
-    /// Whether the driver must wake up: its deadline moved (e.g. a request now awaits a reply)
-    /// or the port failed.
+    /// Read everything that has arrived and hand it to the bus master. `Err` when the port
+    /// failed (end of file: the other side hung up; or an error other than "would block").
+    fn read_input(&mut self, buf: &mut [u8], now: Instant) -> Result<(), String> {
+        let Some(port) = self.port.as_mut() else {
+            return Ok(());
+        };
+        loop {
+            match port.read(buf) {
+                Ok(0) => return Err("end of file".into()),
+                Ok(n) => self
+                    .master
+                    .handle_input(buf.get(..n).unwrap_or_default(), now),
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return Ok(()),
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(format!("read failed: {e}")),
+            }
+        }
+    }
+
+    /// Whether the bus thread must look again: the bus master's deadline moved (e.g. a request
+    /// now awaits a reply) or the port failed.
     fn driver_must_wake(&self) -> bool {
         self.write_error.is_some() || self.master.poll_timeout() != self.armed
     }
 }
 
-/// What the driver task and every [`BusHandle`] share.
+/// What the bus thread and every [`BusHandle`] share.
 struct Shared {
     core: Mutex<Core>,
-    /// Tells the driver that the bus master changed (its deadline may have moved).
-    wake: Notify,
+    /// Signalled with [`Core::woken`] set when the bus master changed under the bus thread.
+    wake: Condvar,
 }
 
 impl Shared {
@@ -88,6 +122,30 @@ impl Shared {
         self.core
             .lock()
             .unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
+    /// Wake the bus thread (the caller has let go of the core).
+    fn wake(&self) {
+        self.core().woken = true;
+        self.wake.notify_one();
+    }
+
+    /// Sleep until `until`, or until woken; returns the core locked again.
+    fn sleep<'a>(&'a self, mut core: MutexGuard<'a, Core>, until: Instant) -> MutexGuard<'a, Core> {
+        while !core.woken {
+            let Some(left) = until
+                .checked_duration_since(Instant::now())
+                .filter(|d| !d.is_zero())
+            else {
+                break;
+            };
+            core = match self.wake.wait_timeout(core, left) {
+                Ok((core, _)) => core,
+                Err(poisoned) => poisoned.into_inner().0,
+            };
+        }
+        core.woken = false;
+        core
     }
 }
 
@@ -101,6 +159,7 @@ impl Drop for Owners {
         let mut core = self.shared.core();
         core.master.shutdown(ShutdownForce::AsIs);
         core.flush();
+        core.woken = true;
         drop(core);
         self.shared.wake.notify_one();
     }
@@ -132,13 +191,14 @@ impl BusHandle {
         &self.name
     }
 
-    /// The newest goal for servo `id`; the driver writes it as soon as it wakes (goals set one
-    /// after another meanwhile share one long packet). Ignored after shutdown and for IDs not
-    /// on this bus. For the goals of one autopilot message, [`BusHandle::set_goals`] is faster.
+    /// The newest goal for servo `id`; the bus thread writes it as soon as it wakes (goals set
+    /// one after another meanwhile share one long packet). Ignored after shutdown and for IDs
+    /// not on this bus. For the goals of one autopilot message, [`BusHandle::set_goals`] is
+    /// faster.
     pub fn set_goal(&self, id: ServoId, goal: Goal) {
         let shared = &self.owners.shared;
         shared.core().master.set_goal(id, goal, Instant::now());
-        shared.wake.notify_one();
+        shared.wake();
     }
 
     /// The newest goals of several servos at once (e.g. every channel of one autopilot
@@ -152,15 +212,15 @@ impl BusHandle {
             core.master.set_goal(id, goal, now);
         }
         core.flush();
-        let wake = core.driver_must_wake();
-        drop(core);
-        // The write is done; the driver (another thread) is woken only when it must re-arm.
-        if wake {
+        // The write is done; the bus thread is woken only when it must re-arm.
+        if core.driver_must_wake() {
+            core.woken = true;
+            drop(core);
             shared.wake.notify_one();
         }
     }
 
-    /// The latest status the driver published.
+    /// The latest status the bus thread published.
     pub fn status(&self) -> BusStatus {
         self.status.borrow().clone()
     }
@@ -176,7 +236,7 @@ impl BusHandle {
     }
 
     /// Stop the bus: wait for a pending reply, write the final packets, let them leave the
-    /// wire, close the port. Returns when the driver has stopped.
+    /// wire, close the port. Returns when the bus thread has stopped.
     pub async fn shutdown(&self, leave: ShutdownForce) {
         let shared = &self.owners.shared;
         {
@@ -184,20 +244,26 @@ impl BusHandle {
             core.master.shutdown(leave);
             core.flush();
         }
-        shared.wake.notify_one();
+        shared.wake();
         let mut finished = self.finished.clone();
         let _ = finished.wait_for(|done| *done).await;
     }
 
-    /// Whether the driver has stopped.
+    /// Whether the bus thread has stopped.
     pub fn is_finished(&self) -> bool {
         *self.finished.borrow() || self.finished.has_changed().is_err()
     }
 }
 
-/// Start a driver for `cfg` on the serial port at `port`. Runs on the current tokio runtime,
-/// or on a thread of its own when called outside one.
+/// Start a bus thread for `cfg` on the serial port at `port`.
 pub fn spawn_bus(cfg: BusConfig, port: PathBuf) -> BusHandle {
+    spawn_bus_observed(cfg, port, Box::new(|_| {}))
+}
+
+/// [`spawn_bus`], with `observe` called in the bus thread with every status published (after
+/// the packets due were written, before the status is sent to watchers). It sees every
+/// telemetry sample, which a [`watch`] receiver cannot promise; it must be quick.
+pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver) -> BusHandle {
     let name = cfg.name.clone();
     let master = BusMaster::new(cfg, Instant::now());
     let (status_tx, status_rx) = watch::channel(master.status());
@@ -206,41 +272,28 @@ pub fn spawn_bus(cfg: BusConfig, port: PathBuf) -> BusHandle {
     let shared = Arc::new(Shared {
         core: Mutex::new(Core {
             master,
-            writer: None,
+            port: None,
             write_error: None,
             armed: None,
+            woken: false,
         }),
-        wake: Notify::new(),
+        wake: Condvar::new(),
     });
     let driver = Driver {
         name: name.clone(),
         shared: Arc::clone(&shared),
         path: port,
         status: status_tx,
+        observe,
         events: event_tx.clone(),
         finished: finished_tx,
         published_at: Instant::now(),
     };
-    match tokio::runtime::Handle::try_current() {
-        Ok(runtime) => {
-            runtime.spawn(driver.run());
-        }
-        Err(_) => {
-            let spawned = std::thread::Builder::new()
-                .name(format!("bus {name}"))
-                .spawn(move || {
-                    match tokio::runtime::Builder::new_current_thread()
-                        .enable_all()
-                        .build()
-                    {
-                        Ok(rt) => rt.block_on(driver.run()),
-                        Err(e) => tracing::error!("bus driver cannot start a runtime: {e}"),
-                    }
-                });
-            if let Err(e) = spawned {
-                tracing::error!("bus driver thread cannot start: {e}");
-            }
-        }
+    let spawned = std::thread::Builder::new()
+        .name(format!("bus {name}"))
+        .spawn(move || driver.run());
+    if let Err(e) = spawned {
+        tracing::error!(bus = %name, "bus thread cannot start: {e}");
     }
     BusHandle {
         name,
@@ -251,25 +304,26 @@ pub fn spawn_bus(cfg: BusConfig, port: PathBuf) -> BusHandle {
     }
 }
 
-/// Open `path` at `baud`, 8N1, no flow control, not exclusive (a pseudo-terminal in tests):
-/// the async read side, and a duplicate of the same open port for plain `write(2)` calls. The
-/// write side never waits: the open port is non-blocking (the read side makes it so, and the
-/// duplicate shares that setting).
-fn open_port(path: &Path, baud: BaudRate) -> Result<(SerialStream, File), tokio_serial::Error> {
+/// Open `path` at `baud`, 8N1, no flow control, not exclusive (a pseudo-terminal in tests),
+/// non-blocking: reads return what has arrived, writes never wait. With it, the bus thread's
+/// [`ReplyWaiter`] on the same port.
+fn open_port(path: &Path, baud: BaudRate) -> Result<(File, ReplyWaiter), String> {
     let mut native = tokio_serial::new(path.to_string_lossy(), baud.bits_per_second())
         .data_bits(DataBits::Eight)
         .parity(Parity::None)
         .stop_bits(StopBits::One)
         .flow_control(FlowControl::None)
-        .open_native()?;
+        .open_native()
+        .map_err(|e| e.to_string())?;
     let _ = native.set_exclusive(false);
-    let duplicate = native.try_clone_native()?;
     // SAFETY: `into_raw_fd` hands over a valid, open descriptor that nothing else owns or
-    // closes any more (the duplicate made by `try_clone_native`); the `File` becomes its only
-    // owner.
-    let writer = unsafe { File::from_raw_fd(duplicate.into_raw_fd()) };
-    let reader = SerialStream::try_from(native)?;
-    Ok((reader, writer))
+    // closes any more; the `File` becomes its only owner.
+    let port = unsafe { File::from_raw_fd(native.into_raw_fd()) };
+    let flags = fcntl(port.as_raw_fd(), FcntlArg::F_GETFL).map_err(|e| e.to_string())?;
+    let flags = OFlag::from_bits_retain(flags) | OFlag::O_NONBLOCK;
+    fcntl(port.as_raw_fd(), FcntlArg::F_SETFL(flags)).map_err(|e| e.to_string())?;
+    let waiter = ReplyWaiter::new(&port).map_err(|e| e.to_string())?;
+    Ok((port, waiter))
 }
 
 enum Exit {
@@ -282,14 +336,17 @@ struct Driver {
     shared: Arc<Shared>,
     path: PathBuf,
     status: watch::Sender<BusStatus>,
+    observe: StatusObserver,
     events: broadcast::Sender<BusEvent>,
     finished: watch::Sender<bool>,
     published_at: Instant,
 }
 
 impl Driver {
-    async fn run(mut self) {
-        let name = self.name.clone();
+    fn run(mut self) {
+        if let Err(e) = nix::sys::prctl::set_timerslack(TIMER_SLACK_NS) {
+            tracing::debug!(bus = %self.name, "timer slack stays at its default: {e}");
+        }
         let (baud, reopen) = {
             let core = self.shared.core();
             let cfg = core.master.config();
@@ -298,18 +355,18 @@ impl Driver {
         let mut backoff = Duration::ZERO;
         loop {
             match open_port(&self.path, baud) {
-                Ok((reader, writer)) => {
+                Ok((port, waiter)) => {
                     backoff = Duration::ZERO;
-                    tracing::info!(bus = %name, port = %self.path.display(), "serial port open at {baud}");
+                    tracing::info!(bus = %self.name, port = %self.path.display(), "serial port open at {baud}");
                     {
                         let mut core = self.shared.core();
                         core.master.handle_port_back(Instant::now());
                         core.write_error = None;
-                        core.writer = Some(writer);
+                        core.port = Some(port);
                     }
-                    let exit = self.serve(reader).await;
+                    let exit = self.serve(waiter);
                     let mut core = self.shared.core();
-                    core.writer = None;
+                    core.port = None;
                     match exit {
                         Exit::Shutdown => break,
                         Exit::PortLost(reason) => {
@@ -329,7 +386,7 @@ impl Driver {
                 break;
             }
             backoff = reopen.after(backoff);
-            if self.wait_offline(backoff).await {
+            if self.wait_offline(backoff) {
                 break;
             }
         }
@@ -343,17 +400,20 @@ impl Driver {
     }
 
     /// Wait `wait` with the port closed, still taking goals. True when a shutdown arrived.
-    async fn wait_offline(&mut self, wait: Duration) -> bool {
-        let until = tokio::time::Instant::now() + wait;
+    fn wait_offline(&mut self, wait: Duration) -> bool {
+        let until = Instant::now() + wait;
         loop {
-            tokio::select! {
-                _ = tokio::time::sleep_until(until) => return false,
-                _ = self.shared.wake.notified() => {}
+            {
+                let core = self.shared.core();
+                let mut core = self.shared.sleep(core, until);
+                core.master.handle_timeout(Instant::now());
+                if core.master.shutdown_requested() {
+                    return true;
+                }
             }
-            self.shared.core().master.handle_timeout(Instant::now());
             self.publish(false);
-            if self.shutdown_requested() {
-                return true;
+            if Instant::now() >= until {
+                return false;
             }
         }
     }
@@ -375,6 +435,7 @@ impl Driver {
         };
         if let Some(status) = status {
             self.published_at = now;
+            (self.observe)(&status);
             self.status.send_replace(status);
         }
         for event in events {
@@ -391,12 +452,18 @@ impl Driver {
         }
     }
 
-    /// Run the bus over an open port until shutdown or until the port fails.
-    async fn serve(&mut self, mut port: SerialStream) -> Exit {
+    /// Run the bus over the open port until shutdown or until the port fails.
+    fn serve(&mut self, mut waiter: ReplyWaiter) -> Exit {
         let mut buf = [0u8; 512];
         loop {
-            let (deadline, wire_idle_at) = {
+            let (wake_at, reply_wait, wire_idle_at) = {
                 let mut core = self.shared.core();
+                let now = Instant::now();
+                if let Err(reason) = core.read_input(&mut buf, now) {
+                    return Exit::PortLost(reason);
+                }
+                core.master.handle_timeout(now);
+                // A completed reply frees the bus: write what is due in this turn.
                 core.flush();
                 if let Some(reason) = core.write_error.take() {
                     return Exit::PortLost(reason);
@@ -404,38 +471,89 @@ impl Driver {
                 let done = core.master.is_shut_down();
                 let deadline = (!done).then(|| core.master.poll_timeout()).flatten();
                 core.armed = deadline;
-                (deadline, done.then(|| core.master.wire_idle_at()))
+                let complete_at = core.master.reply_complete_at();
+                // The awaited reply can be whole by now: wait on the port for its last bytes.
+                let reply_wait = match (complete_at, core.master.bytes_awaited(), deadline) {
+                    (Some(at), Some(bytes), Some(deadline)) if now >= at => Some((bytes, deadline)),
+                    _ => None,
+                };
+                let refresh = now + STATUS_REFRESH;
+                let wake_at = [deadline, complete_at]
+                    .into_iter()
+                    .flatten()
+                    .fold(refresh, Instant::min);
+                (
+                    wake_at,
+                    reply_wait,
+                    done.then(|| core.master.wire_idle_at()),
+                )
             };
             self.publish(false);
             if let Some(idle) = wire_idle_at {
                 // Let the final packets leave the wire before the port closes.
-                tokio::time::sleep_until(idle.into()).await;
+                std::thread::sleep(idle.saturating_duration_since(Instant::now()));
                 return Exit::Shutdown;
             }
-            // Wake at least every STATUS_REFRESH: goals set by other threads change the status
-            // without waking the driver.
-            let refresh = tokio::time::Instant::now() + STATUS_REFRESH;
-            let sleep_to = deadline
-                .map(tokio::time::Instant::from_std)
-                .map_or(refresh, |d| d.min(refresh));
-            tokio::select! {
-                biased;
-                read = port.read(&mut buf) => match read {
-                    Ok(0) => return Exit::PortLost("end of file".into()),
-                    Ok(n) => {
-                        let now = Instant::now();
-                        let mut core = self.shared.core();
-                        core.master.handle_input(buf.get(..n).unwrap_or_default(), now);
-                        // A completed reply frees the bus: write what is due in this turn.
-                        core.flush();
-                    }
-                    Err(e) if matches!(e.kind(), std::io::ErrorKind::Interrupted | std::io::ErrorKind::WouldBlock) => {}
-                    Err(e) => return Exit::PortLost(format!("read failed: {e}")),
-                },
-                _ = self.shared.wake.notified() => {}
-                _ = tokio::time::sleep_until(sleep_to) => {}
+            if let Some((bytes, deadline)) = reply_wait {
+                waiter.wait_for(bytes, deadline);
+                continue;
             }
-            self.shared.core().master.handle_timeout(Instant::now());
+            let core = self.shared.core();
+            drop(self.shared.sleep(core, wake_at));
         }
+    }
+}
+
+/// Waits on the port for the last bytes of a reply, without the core locked. It holds its own
+/// descriptor of the port (a duplicate), so a writer closing the port meanwhile cannot pull
+/// the descriptor from under the wait.
+struct ReplyWaiter {
+    port: File,
+    /// The tty's settings, to change its read threshold (`None` when it cannot be changed:
+    /// the wait then ends at the first byte, and the bus thread looks again).
+    termios: Option<Termios>,
+    /// The read threshold set last.
+    vmin: u8,
+}
+
+impl ReplyWaiter {
+    fn new(port: &File) -> std::io::Result<Self> {
+        let port = port.try_clone()?;
+        let termios = tcgetattr(&port).ok().map(|mut termios| {
+            // VMIN counts only when VTIME is 0.
+            termios.control_chars[SpecialCharacterIndices::VTIME as usize] = 0;
+            termios
+        });
+        Ok(ReplyWaiter {
+            port,
+            termios,
+            vmin: 0,
+        })
+    }
+
+    /// Block until `bytes` more bytes can be read (or the port failed), or until `until`.
+    /// The tty's read threshold (termios `VMIN`) is set to `bytes` first, so the kernel makes
+    /// the port readable only then; reads stay non-blocking and return whatever is there.
+    fn wait_for(&mut self, bytes: usize, until: Instant) {
+        let vmin = u8::try_from(bytes.max(1)).unwrap_or(u8::MAX);
+        if let Some(termios) = self.termios.as_mut()
+            && vmin != self.vmin
+        {
+            termios.control_chars[SpecialCharacterIndices::VMIN as usize] = vmin;
+            match tcsetattr(&self.port, SetArg::TCSANOW, termios) {
+                Ok(()) => self.vmin = vmin,
+                Err(e) => {
+                    tracing::debug!("read threshold not settable, waking at every byte: {e}");
+                    self.termios = None;
+                }
+            }
+        }
+        let left = until.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return;
+        }
+        let mut fds = [PollFd::new(self.port.as_fd(), PollFlags::POLLIN)];
+        // Readable, failed, hung up or timed out: the bus thread reads and looks again.
+        let _ = ppoll(&mut fds, Some(TimeSpec::from_duration(left)), None);
     }
 }

@@ -46,6 +46,9 @@ struct Pending {
     index: usize,
     tx: Transaction,
     expected: ExpectedReply,
+    /// When the whole reply can have arrived at the earliest (request sent, return delay,
+    /// reply's wire time).
+    complete_at: Instant,
     deadline: Instant,
 }
 
@@ -410,6 +413,7 @@ impl BusMaster {
                 index: i,
                 tx,
                 expected,
+                complete_at: self.wire_free_at + return_delay + reply_wire,
                 deadline: self.wire_free_at + reply_wire + return_delay + self.cfg.turnaround,
             });
         }
@@ -614,6 +618,30 @@ impl BusMaster {
                 .hold_until(at, self.poll_busy())
                 .map_or(next, |closes| closes.max(next)),
         )
+    }
+
+    /// How many more bytes would complete the reply awaited (at least 1), or `None` when no
+    /// reply is pending. Fewer bytes cannot finish the transaction, so a driver may sleep until
+    /// this many have arrived (or the deadline of [`BusMaster::poll_timeout`] passes) instead
+    /// of waking for every byte. Bytes already buffered count towards the reply, so garbage or
+    /// an echo only makes the figure smaller, never too large.
+    pub fn bytes_awaited(&self) -> Option<usize> {
+        let p = self.pending?;
+        Some(
+            p.expected
+                .wire_len()
+                .saturating_sub(self.decoder.buffered())
+                .max(1),
+        )
+    }
+
+    /// When the awaited reply can be complete at the earliest (request sent, return delay,
+    /// reply's wire time), or `None` when no reply is pending. Nothing the reply carries can
+    /// be acted on before then, so a driver may leave the port unread until this instant and
+    /// then wait for [`BusMaster::bytes_awaited`] bytes (or the deadline of
+    /// [`BusMaster::poll_timeout`]) instead of waking for every byte.
+    pub fn reply_complete_at(&self) -> Option<Instant> {
+        self.pending.map(|p| p.complete_at)
     }
 
     /// The next event, oldest first.

@@ -6,9 +6,10 @@
 //!   the current time, and answers with the next bytes to write and the next deadline. It
 //!   never does I/O and never reads a clock, so its tests run at microsecond precision without
 //!   sleeping. [`servo`] is its per-servo record (start-up phase, force, goals, stall watch).
-//! - [`driver`]: the thin tokio shell ([`spawn_bus`], [`BusHandle`]) that runs one bus master
-//!   over a `tokio-serial` port, reopening the port when it disappears. Several buses run side
-//!   by side, one driver each. It never decides what to send; it carries bytes and time.
+//! - [`driver`]: the thin shell ([`spawn_bus`], [`BusHandle`]) that runs one bus master in a
+//!   thread of its own over a serial port, reading it on the bus master's clock (one wake-up
+//!   per reply) and reopening it when it disappears. Several buses run side by side, one
+//!   thread each. It never decides what to send; it carries bytes and time.
 //!
 //! Plain data: [`config`] (what the bus is), [`goal`] (what is asked of a servo), [`status`]
 //! (what is known of it), [`event`] (what happened), [`transmit`] (what to write next).
@@ -84,7 +85,7 @@ pub mod transmit;
 mod tests;
 
 pub use config::{Backoff, BusConfig, ServoSetup, StallConfig};
-pub use driver::{BusHandle, spawn_bus};
+pub use driver::{BusHandle, StatusObserver, spawn_bus, spawn_bus_observed};
 pub use event::BusEvent;
 pub use goal::{Goal, ShutdownForce};
 pub use master::BusMaster;

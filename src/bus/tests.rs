@@ -1337,3 +1337,37 @@ fn periodic_goals_find_the_bus_free_and_telemetry_keeps_its_rate() {
     let per_servo_hz = polls as f64 / seconds / 4.0;
     assert!(per_servo_hz > 60.0, "{per_servo_hz:.1} Hz per servo");
 }
+
+#[test]
+fn a_reply_is_awaited_from_its_earliest_end_and_counted_down_byte_by_byte() {
+    let mut rig = Rig::online_with_force(&[1]);
+    rig.settle();
+    rig.run(ms(50));
+    rig.settle();
+    // The next request is a telemetry poll: 8 bytes out, 26 back.
+    rig.t = rig.m.poll_timeout().expect("a poll is due").max(rig.t);
+    rig.m.handle_timeout(rig.t);
+    let tx = rig.m.poll_transmit(rig.t).expect("a poll");
+    assert_eq!(tx.kind, TxKind::Poll(id(1)));
+    let request_end = rig.t + rig.wire(tx.bytes.len());
+    let complete_at = rig.m.reply_complete_at().expect("a reply is awaited");
+    let deadline = rig.m.poll_timeout().expect("the reply's deadline");
+    // No earlier than the request and the whole reply on the wire; the deadline adds only the
+    // turnaround allowance.
+    assert!(complete_at >= request_end + rig.wire(26), "{complete_at:?}");
+    assert_eq!(deadline - complete_at, rig.m.config().turnaround);
+    assert_eq!(rig.m.bytes_awaited(), Some(26));
+
+    let reply = rig.servo(1).handle(&tx.bytes).expect("the servo answers");
+    // An echo of the request is not part of the reply.
+    rig.m.handle_input(&tx.bytes, request_end);
+    assert_eq!(rig.m.bytes_awaited(), Some(26));
+    rig.m.handle_input(&reply[..20], complete_at);
+    assert_eq!(rig.m.bytes_awaited(), Some(6));
+    rig.m.handle_input(&reply[20..25], complete_at);
+    assert_eq!(rig.m.bytes_awaited(), Some(1));
+    rig.m.handle_input(&reply[25..], complete_at);
+    assert_eq!(rig.m.bytes_awaited(), None);
+    assert_eq!(rig.m.reply_complete_at(), None);
+    assert_eq!(rig.m.counters().timeouts, 0);
+}

@@ -1,25 +1,25 @@
 //! Feeding the recorder from the buses: bus statuses in, telemetry and health records out.
 //!
-//! A [`StatusFeed`] is handed every [`BusStatus`] a bus driver publishes (from
-//! [`BusHandle::watch_status`](crate::bus::BusHandle::watch_status)) and records what is new
-//! in it: each servo's telemetry sample (once, stamped with the time its reply arrived), and
-//! its health or stall state when either changes. It finds a servo's index in the record by
-//! its bus name and ID. Bus events can be recorded through it too.
+//! A [`StatusFeed`] is handed the [`BusStatus`]es a bus publishes and records what is new in
+//! them: each servo's telemetry sample (once, stamped with the time its reply arrived), and its
+//! health or stall state when either changes. It finds a servo's index in the record by its
+//! bus name and ID. Bus events can be recorded through it too.
 //!
-//! A status watch keeps only the newest status, so a sample replaced before the feed looked
-//! is not recorded; [`StatusFeed::missed_samples`] counts those (from the servo's telemetry
-//! counter), so the loss is known, not silent.
+//! As the bus's status observer ([`spawn_bus_observed`](crate::bus::spawn_bus_observed)) it is
+//! called in the bus thread with every status, so it sees every sample. Fed from a status watch
+//! ([`BusHandle::watch_status`](crate::bus::BusHandle::watch_status)), which keeps only the
+//! newest status, a sample replaced before the feed looked is not recorded;
+//! [`StatusFeed::missed_samples`] counts those (from the servo's telemetry counter), so the
+//! loss is known, not silent.
 //!
 //! ```no_run
-//! # async fn feed(bus: lj9da_bridge::bus::BusHandle, record: lj9da_bridge::record::RecordHandle,
-//! #               servos: Vec<lj9da_bridge::record::RecordServo>) {
+//! # fn feed(cfg: lj9da_bridge::bus::BusConfig, port: std::path::PathBuf,
+//! #         record: lj9da_bridge::record::RecordHandle,
+//! #         servos: Vec<lj9da_bridge::record::RecordServo>) {
+//! use lj9da_bridge::bus::spawn_bus_observed;
 //! use lj9da_bridge::record::StatusFeed;
 //! let mut feed = StatusFeed::new(record, &servos);
-//! let mut status = bus.watch_status();
-//! while status.changed().await.is_ok() {
-//!     let snapshot = status.borrow_and_update().clone();
-//!     feed.observe(&snapshot);
-//! }
+//! let bus = spawn_bus_observed(cfg, port, Box::new(move |status| feed.observe(status)));
 //! # }
 //! ```
 

@@ -28,7 +28,7 @@
 //! let record = Recorder::start("records".as_ref(), &servos, RecordLimits::default())?;
 //! // Where the bridge hands a goal to a bus (servo index in mapping order):
 //! record.goal(0, Goal::Position(MmCenti(1250)));
-//! // Per bus status (from `BusHandle::watch_status`): telemetry and health.
+//! // Per bus status (as the bus's status observer, or from `BusHandle::watch_status`).
 //! let mut feed = StatusFeed::new(record.clone(), &servos);
 //! // feed.observe(&status);
 //! // Per event the ground station is told: record.bridge_event(&event, servo_name);

@@ -1,8 +1,8 @@
 //! The recorder: a handle that never blocks, and a writer thread that owns the file.
 //!
 //! [`RecordHandle`]'s methods stamp a record with the time and push it into a bounded queue;
-//! they never wait, never touch the disk and never fail. A dedicated thread takes records
-//! from the queue, encodes them into a buffer, writes the buffer out when it holds 64 KiB
+//! they never wait, never touch the disk, never wake another thread and never fail. A
+//! dedicated thread takes the queued records every 50 ms, encodes them into a buffer, writes the buffer out when it holds 64 KiB
 //! and, at least every [`RecorderOptions::sync_interval`] (0.5 s by default) while there is
 //! something to write, writes it out and asks the disk to keep it (`File::sync_data`). So a
 //! crash or power cut loses at most the last ~0.5 s of records (plus what the disk takes to
@@ -34,7 +34,7 @@ use std::fs::File;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::mpsc::{self, Receiver, SyncSender, TryRecvError, TrySendError};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -188,6 +188,8 @@ impl Recorder {
 
 /// The bytes gathered before they are written out.
 const BUFFER_BYTES: usize = 64 << 10;
+/// How often the writer takes what is queued (and at least every sync interval).
+const DRAIN_PERIOD: Duration = Duration::from_millis(50);
 /// How long the writer waits before it opens a new file after a write error.
 const RETRY_AFTER_ERROR: Duration = Duration::from_secs(5);
 
@@ -363,6 +365,9 @@ impl RecordHandle {
     pub fn finish(self) -> RecordStats {
         let (done_tx, done_rx) = mpsc::channel();
         if self.tx.send(Message::Finish(done_tx)).is_ok() {
+            if let Some(thread) = lock(&self.shared.thread).as_ref() {
+                thread.thread().unpark();
+            }
             let _ = done_rx.recv();
         }
         let thread = lock(&self.shared.thread).take();
@@ -395,28 +400,21 @@ impl Writer {
     fn run(mut self, rx: Receiver<Message>, interval: Duration) {
         let mut next_sync = Instant::now() + interval;
         loop {
-            let wait = next_sync.saturating_duration_since(Instant::now());
-            let finish = match rx.recv_timeout(wait) {
-                Ok(Message::Record(record)) => {
-                    self.take(record);
-                    // Take what else is queued before looking at the clock again.
-                    let mut finish = None;
-                    for _ in 0..1024 {
-                        match rx.try_recv() {
-                            Ok(Message::Record(record)) => self.take(record),
-                            Ok(Message::Finish(done)) => {
-                                finish = Some(Some(done));
-                                break;
-                            }
-                            Err(_) => break,
-                        }
+            let mut finish = None;
+            loop {
+                match rx.try_recv() {
+                    Ok(Message::Record(record)) => self.take(record),
+                    Ok(Message::Finish(done)) => {
+                        finish = Some(Some(done));
+                        break;
                     }
-                    finish
+                    Err(TryRecvError::Empty) => break,
+                    Err(TryRecvError::Disconnected) => {
+                        finish = Some(None);
+                        break;
+                    }
                 }
-                Ok(Message::Finish(done)) => Some(Some(done)),
-                Err(RecvTimeoutError::Timeout) => None,
-                Err(RecvTimeoutError::Disconnected) => Some(None),
-            };
+            }
             if let Some(done) = finish {
                 self.close();
                 if let Some(done) = done {
@@ -433,6 +431,9 @@ impl Writer {
                 }
                 next_sync = now + interval;
             }
+            // Senders never wake the writer (a record costs its sender no thread switch);
+            // `finish` does.
+            std::thread::park_timeout(DRAIN_PERIOD.min(next_sync.saturating_duration_since(now)));
         }
     }
 
