@@ -6,7 +6,8 @@
 //! `read()` returned their first byte; replies with the instants their bytes were complete on the
 //! wire), in the same process and on the same clock as the `Instant` taken just before each
 //! `set_goal`:
-//! - command frames/s and polls/s: long packets and 42–59 requests the line carried;
+//! - command frames/s, polls/s and pos/s: long packets, 42–59 requests and position-only reads
+//!   (registers 42–43, bus time left before a goal too short for a poll) the line carried;
 //! - telemetry Hz/servo: 42–59 replies per servo per second (the slowest servo's rate);
 //! - wire %: wire time of every host and reply byte over the elapsed time;
 //! - limit %: the fraction of the wire-time limit of protocol spec section 8 that the bus master
@@ -59,6 +60,8 @@ struct Row {
     label: String,
     frames_s: f64,
     polls_s: f64,
+    /// Position-only reads (registers 42–43) per second.
+    position_s: f64,
     telemetry_hz_min: f64,
     wire_fraction: f64,
     utilisation: f64,
@@ -284,6 +287,12 @@ async fn run(s: Scenario) -> Result<Row, String> {
                         if sp.flag & 0x0F == 0x09 && in_window(p.first_byte_at) {
                             row.polls_s += 1.0;
                         }
+                        if sp.flag & 0x0F == 0x0F
+                            && sp.address == 0x2A
+                            && in_window(p.first_byte_at)
+                        {
+                            row.position_s += 1.0;
+                        }
                         if sp.flag & 0x0F != 0 {
                             requests.push((p.first_byte_at, sp.id));
                             last_request_end.insert(sp.id, p.completed_at);
@@ -312,6 +321,7 @@ async fn run(s: Scenario) -> Result<Row, String> {
     }
     row.frames_s /= secs;
     row.polls_s /= secs;
+    row.position_s /= secs;
     row.wire_fraction = busy_wire_s / secs;
     row.utilisation = union_within(&mut in_use, t0, t1).as_secs_f64() / secs;
     row.telemetry_hz_min = ids
@@ -495,13 +505,13 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
     );
     println!();
     let header = [
-        "frames/s", "polls/s", "telem Hz", "wire %", "limit %", "p50", "p99", "max", "idle p50",
-        "busy exc", "busy exc", "on wire", "t/o", "coll",
+        "frames/s", "polls/s", "pos/s", "telem Hz", "wire %", "limit %", "p50", "p99", "max",
+        "idle p50", "busy exc", "busy exc", "on wire", "t/o", "coll",
     ];
     let header2 = [
-        "", "", "/servo", "", "", "", "", "", "", "p99", "max", "/set", "", "",
+        "", "", "", "/servo", "", "", "", "", "", "", "p99", "max", "/set", "", "",
     ];
-    let widths = [8, 7, 9, 6, 7, 7, 7, 7, 8, 8, 8, 11, 4, 4];
+    let widths = [8, 7, 6, 9, 6, 7, 7, 7, 7, 8, 8, 8, 11, 4, 4];
     let line = |label: &str, cells: &[String]| {
         let mut out = format!("{label:<27}");
         for (cell, w) in cells.iter().zip(widths) {
@@ -525,6 +535,7 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
             &[
                 format!("{:.1}", r.frames_s),
                 format!("{:.1}", r.polls_s),
+                format!("{:.1}", r.position_s),
                 format!("{:.1}", r.telemetry_hz_min),
                 format!("{:.1}%", r.wire_fraction * 100.0),
                 format!("{:.1}%", r.utilisation * 100.0),

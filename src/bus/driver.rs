@@ -9,15 +9,18 @@
 //! long packet). Order on the wire is the order of the lock; the bus master alone decides what
 //! may be sent (never while a reply is pending).
 //!
-//! The bus thread reads the port on a clock, not on every byte: it sleeps until the bus master's
-//! next deadline, or until the awaited reply can be complete ([`BusMaster::reply_check_at`]),
-//! then reads whatever has arrived without blocking. A reply therefore costs one wake-up, not
-//! one per byte (at 115 200 bit/s a telemetry reply is 26 bytes; the bridge's CPU time is
-//! mostly wake-ups). The port is in no event loop, so bytes arriving do not wake anything. The
-//! thread also publishes the status (when it changed, at least every 100 ms) and the events,
-//! and reopens a port that fails or disappears with back-off (`port_reopen_backoff`, 100 ms
-//! doubling to 2 s by default); goals keep being accepted meanwhile. A port that fails while
-//! idle is noticed within 100 ms (the thread reads at least that often).
+//! The bus thread reads the port when the bus master says a reply should be there, not on
+//! every byte: it sleeps until the bus master's next deadline or until the awaited reply should
+//! be (nearly) whole ([`BusMaster::reply_look_at`]), reads whatever has arrived without
+//! blocking, and if part of the reply is still missing, waits on the port with the tty's read
+//! threshold (termios `VMIN`) set to the bytes missing ([`BusMaster::bytes_awaited`]), so the
+//! kernel wakes it once they are all in. A reply costs about one wake-up, not one per byte (at
+//! 115 200 bit/s a telemetry reply is 26 bytes; the bridge's CPU time is mostly wake-ups). The
+//! port is in no event loop, so bytes arriving otherwise wake nothing. The thread also
+//! publishes the status (when it changed, at least every 100 ms) and the events, and reopens
+//! a port that fails or disappears with back-off (`port_reopen_backoff`, 100 ms doubling to
+//! 2 s by default); goals keep being accepted meanwhile. A port that fails while idle is
+//! noticed within 100 ms (the thread reads at least that often).
 //!
 //! This file must never decide what to send or when: it only carries bytes and time between the
 //! port and the bus master. It never panics: a port error is a lost port, a poisoned lock is
@@ -93,9 +96,14 @@ impl Core {
         loop {
             match port.read(buf) {
                 Ok(0) => return Err("end of file".into()),
-                Ok(n) => self
-                    .master
-                    .handle_input(buf.get(..n).unwrap_or_default(), now),
+                Ok(n) => {
+                    self.master
+                        .handle_input(buf.get(..n).unwrap_or_default(), now);
+                    if n < buf.len() {
+                        // The tty had no more (a later byte is read at the next look).
+                        return Ok(());
+                    }
+                }
                 Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return Ok(()),
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
                 Err(e) => return Err(format!("read failed: {e}")),
@@ -471,14 +479,15 @@ impl Driver {
                 let done = core.master.is_shut_down();
                 let deadline = (!done).then(|| core.master.poll_timeout()).flatten();
                 core.armed = deadline;
-                let complete_at = core.master.reply_complete_at();
-                // The awaited reply can be whole by now: wait on the port for its last bytes.
-                let reply_wait = match (complete_at, core.master.bytes_awaited(), deadline) {
+                let look_at = core.master.reply_look_at();
+                // The awaited reply should be (nearly) whole by now: wait on the port for its
+                // last bytes.
+                let reply_wait = match (look_at, core.master.bytes_awaited(), deadline) {
                     (Some(at), Some(bytes), Some(deadline)) if now >= at => Some((bytes, deadline)),
                     _ => None,
                 };
                 let refresh = now + STATUS_REFRESH;
-                let wake_at = [deadline, complete_at]
+                let wake_at = [deadline, look_at]
                     .into_iter()
                     .flatten()
                     .fold(refresh, Instant::min);

@@ -50,6 +50,9 @@ struct Pending {
     /// reply's wire time).
     complete_at: Instant,
     deadline: Instant,
+    /// A look before the deadline found the reply incomplete: the driver then waited for its
+    /// last bytes, so the read that completes it happens when it completed.
+    looked: bool,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -67,6 +70,9 @@ pub struct BusMaster {
     servos: Vec<Servo>,
     decoder: Decoder,
     pending: Option<Pending>,
+    /// How much later than their earliest possible end replies are read whole (learned; see
+    /// [`BusMaster::reply_look_at`]).
+    reply_lateness: Duration,
     /// When the bytes already handed out will have left the wire.
     wire_free_at: Instant,
     /// The servo that had the last round-robin turn.
@@ -101,6 +107,7 @@ impl BusMaster {
             servos,
             decoder: Decoder::new(),
             pending: None,
+            reply_lateness: Duration::ZERO,
             wire_free_at: now,
             cursor,
             events: VecDeque::new(),
@@ -208,6 +215,7 @@ impl BusMaster {
         }
         self.pending = None;
         self.changed = true;
+        self.learn_lateness(&p, now);
         self.counters.wire_busy_ns += self.cfg.baud.wire_time_ns(reply.wire_len());
         let mut events = Vec::new();
         let cfg = &self.cfg;
@@ -233,6 +241,11 @@ impl BusMaster {
             Transaction::Force(mode) => {
                 if s.phase == Phase::Ready {
                     s.on_force(mode, &reply.data, now, cfg, &mut events);
+                }
+            }
+            Transaction::Position => {
+                if let [lo, hi] = reply.data[..] {
+                    s.store_position(crate::protocol::MmCenti(i16::from_le_bytes([lo, hi])), now);
                 }
             }
             Transaction::Telemetry => {
@@ -267,6 +280,11 @@ impl BusMaster {
             return;
         };
         if now < p.deadline {
+            if now >= self.look_at(&p)
+                && let Some(p) = self.pending.as_mut()
+            {
+                p.looked = true;
+            }
             return;
         }
         // A complete reply may sit behind a candidate that never completed.
@@ -343,6 +361,16 @@ impl BusMaster {
             return self.long_packet(now);
         }
         if self.rhythm.hold_until(now, self.poll_busy()).is_some() {
+            // A full poll would still hold the bus when the next goal is due; a position-only
+            // read may end in time.
+            if self
+                .rhythm
+                .hold_until(now, self.position_poll_busy())
+                .is_none()
+                && let Some(i) = self.position_poll_servo()
+            {
+                return Some(self.start(i, Transaction::Position, now));
+            }
             return None;
         }
         let due = |at: Option<Instant>| at.is_none_or(|t| t <= now);
@@ -375,7 +403,22 @@ impl BusMaster {
             .map(|s| s.return_delay.unwrap_or(self.cfg.assumed_return_delay))
             .max()
             .unwrap_or_default();
-        self.cfg.wire_time(8 + 26) + return_delay + Duration::from_micros(300)
+        self.cfg.wire_time(8 + 26) + return_delay + Duration::from_micros(150)
+    }
+
+    /// How long a position-only read holds the bus (see [`BusMaster::poll_busy`]).
+    fn position_poll_busy(&self) -> Duration {
+        self.poll_busy() - self.cfg.wire_time(26 - 10)
+    }
+
+    /// The ready servo whose position was read longest ago, for a position-only read.
+    fn position_poll_servo(&self) -> Option<usize> {
+        self.servos
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.phase == Phase::Ready)
+            .min_by_key(|(_, s)| s.position_read_at())
+            .map(|(i, _)| i)
     }
 
     /// How far ahead of the wire a long packet may be queued: one frame of the largest size.
@@ -398,11 +441,13 @@ impl BusMaster {
             Transaction::Identify | Transaction::ReadRam => TxKind::Init(id),
             Transaction::Probe => TxKind::Probe(id),
             Transaction::Telemetry => TxKind::Poll(id),
+            Transaction::Position => TxKind::PositionPoll(id),
             Transaction::Verify => TxKind::Verify(id),
             Transaction::Force(_) => TxKind::Force(id),
         };
         match tx {
             Transaction::Telemetry => self.counters.polls += 1,
+            Transaction::Position => self.counters.position_polls += 1,
             _ => self.counters.other_requests += 1,
         }
         let expected = packet.expected_reply();
@@ -414,6 +459,7 @@ impl BusMaster {
                 tx,
                 expected,
                 complete_at: self.wire_free_at + return_delay + reply_wire,
+                looked: false,
                 deadline: self.wire_free_at + reply_wire + return_delay + self.cfg.turnaround,
             });
         }
@@ -611,7 +657,17 @@ impl BusMaster {
             .flatten()
             .min()?;
         // A request due inside a goal's arrival window waits for the window to close (a goal
-        // arriving meanwhile is taken at once through `set_goal`).
+        // arriving meanwhile is taken at once through `set_goal`); a position-only read that
+        // ends before the window opens is due at once.
+        if self.rhythm.hold_until(self.now, self.poll_busy()).is_some()
+            && self
+                .rhythm
+                .hold_until(self.now, self.position_poll_busy())
+                .is_none()
+            && self.position_poll_servo().is_some()
+        {
+            return Some(self.now);
+        }
         let at = next.max(self.now);
         Some(
             self.rhythm
@@ -636,12 +692,49 @@ impl BusMaster {
     }
 
     /// When the awaited reply can be complete at the earliest (request sent, return delay,
-    /// reply's wire time), or `None` when no reply is pending. Nothing the reply carries can
-    /// be acted on before then, so a driver may leave the port unread until this instant and
-    /// then wait for [`BusMaster::bytes_awaited`] bytes (or the deadline of
-    /// [`BusMaster::poll_timeout`]) instead of waking for every byte.
+    /// reply's wire time), or `None` when no reply is pending.
     pub fn reply_complete_at(&self) -> Option<Instant> {
         self.pending.map(|p| p.complete_at)
+    }
+
+    /// When a driver that leaves the port unread while a reply comes in should first look for
+    /// it (then, if part is missing, wait for [`BusMaster::bytes_awaited`] bytes): one byte
+    /// time before replies have been found whole so far, never before
+    /// [`BusMaster::reply_complete_at`]. `None` when no reply is pending.
+    ///
+    /// The lateness is learned from the replies: a reply completed while the driver waited for
+    /// its last bytes tells when it completed (1/8 of the difference is taken); one found whole
+    /// at the first look completed earlier than that look, and lowers the lateness by 1/8 of a
+    /// byte time. Looking a byte early costs the driver one more wake-up in the kernel; looking
+    /// late would leave the bus idle.
+    pub fn reply_look_at(&self) -> Option<Instant> {
+        self.pending.as_ref().map(|p| self.look_at(p))
+    }
+
+    /// The lateness learned so far (see [`BusMaster::reply_look_at`]).
+    pub fn reply_lateness(&self) -> Duration {
+        self.reply_lateness
+    }
+
+    fn look_at(&self, p: &Pending) -> Instant {
+        let early = self.reply_lateness.saturating_sub(self.cfg.wire_time(1));
+        (p.complete_at + early).min(p.deadline)
+    }
+
+    fn learn_lateness(&mut self, p: &Pending, now: Instant) {
+        let byte = self.cfg.wire_time(1);
+        if p.looked {
+            let seen = now
+                .saturating_duration_since(p.complete_at)
+                .min(self.cfg.turnaround);
+            if seen >= self.reply_lateness {
+                self.reply_lateness += (seen - self.reply_lateness) / 8;
+            } else {
+                self.reply_lateness -= (self.reply_lateness - seen) / 8;
+            }
+        } else {
+            self.reply_lateness = self.reply_lateness.saturating_sub(byte / 8);
+        }
     }
 
     /// The next event, oldest first.

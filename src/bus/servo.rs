@@ -41,6 +41,8 @@ pub(super) enum Transaction {
     Probe,
     ReadRam,
     Telemetry,
+    /// Registers 42–43 alone, in bus time too short for a full telemetry poll.
+    Position,
     Verify,
     Force(ForceMode),
 }
@@ -79,6 +81,9 @@ pub(super) struct Servo {
 
     pub telemetry: Option<Telemetry>,
     pub telemetry_at: Option<Instant>,
+    /// When a position-only read last refreshed the telemetry's position (`None` since the
+    /// last full poll).
+    pub position_at: Option<Instant>,
     pub flags: ReplyFlags,
     pub last_poll_at: Option<Instant>,
     pub last_verify_at: Option<Instant>,
@@ -120,6 +125,7 @@ impl Servo {
             temperature_limit: None,
             telemetry: None,
             telemetry_at: None,
+            position_at: None,
             flags: ReplyFlags::default(),
             last_poll_at: None,
             last_verify_at: None,
@@ -222,6 +228,9 @@ impl Servo {
                 ShortPacket::request(id, ReplyRequest::Registers0To29)
             }
             Transaction::Telemetry => ShortPacket::request(id, ReplyRequest::Registers42To59),
+            // Registers 42–43 are always a valid read; were they not, a full poll would do.
+            Transaction::Position => ShortPacket::read(id, addr::PRESENT_POSITION, 2)
+                .unwrap_or_else(|_| ShortPacket::request(id, ReplyRequest::Registers42To59)),
             Transaction::Verify => ShortPacket::request(id, ReplyRequest::Registers30To41),
             Transaction::ReadRam => self
                 .setup
@@ -432,8 +441,24 @@ impl Servo {
     pub fn store_reading(&mut self, t: Telemetry, now: Instant) {
         self.telemetry = Some(t);
         self.telemetry_at = Some(now);
+        self.position_at = None;
         self.telemetry_count += 1;
         self.last_position = Some(t.present_position);
+    }
+
+    /// Registers 42–43 arrived (a position-only read): the position of the latest telemetry
+    /// is replaced, its other values and their time are kept.
+    pub fn store_position(&mut self, position: MmCenti, now: Instant) {
+        if let Some(t) = self.telemetry.as_mut() {
+            t.present_position = position;
+            self.position_at = Some(now);
+        }
+        self.last_position = Some(position);
+    }
+
+    /// When the position was last read, by a full poll or a position-only read.
+    pub fn position_read_at(&self) -> Option<Instant> {
+        self.position_at.or(self.telemetry_at)
     }
 
     pub fn on_telemetry(
@@ -558,6 +583,7 @@ impl Servo {
             health: self.health(now, cfg),
             telemetry: self.telemetry,
             telemetry_at: self.telemetry_at,
+            position_at: self.position_at,
             age: self
                 .telemetry_at
                 .map(|at| now.saturating_duration_since(at)),

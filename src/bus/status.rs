@@ -55,6 +55,9 @@ pub struct ServoStatus {
     pub telemetry: Option<Telemetry>,
     /// When that telemetry arrived.
     pub telemetry_at: Option<Instant>,
+    /// When its position was refreshed by a position-only read (registers 42–43, in bus time
+    /// too short for a full poll), if it was since; `age` stays that of the full telemetry.
+    pub position_at: Option<Instant>,
     /// Its age at the time of the snapshot.
     pub age: Option<Duration>,
     /// The status bits of the servo's latest reply (bit 1, undefined, removed).
@@ -90,6 +93,8 @@ pub struct BusCounters {
     pub command_frames: u64,
     /// Telemetry polls written.
     pub polls: u64,
+    /// Position-only reads written (bus time left before a goal, too short for a poll).
+    pub position_polls: u64,
     /// Telemetry replies received.
     pub telemetry_replies: u64,
     /// Start-up reads, probes, force writes and read-backs written.

@@ -1371,3 +1371,196 @@ fn a_reply_is_awaited_from_its_earliest_end_and_counted_down_byte_by_byte() {
     assert_eq!(rig.m.reply_complete_at(), None);
     assert_eq!(rig.m.counters().timeouts, 0);
 }
+
+#[test]
+fn position_reads_fill_bus_time_too_short_for_a_poll_before_the_next_goal() {
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    let period = ms(20);
+    let mut delays = Vec::new();
+    let polls_before = rig.m.counters().polls;
+    let t_start = rig.t;
+    let mut position_reads = Vec::new();
+    for k in 0..100i16 {
+        let at = rig.t;
+        for n in 1..=4u8 {
+            rig.set_goal(n, Goal::Position(MmCenti(k * 10 + i16::from(n))));
+        }
+        let from = rig.log.len();
+        rig.run(period);
+        let sent = rig.sent_since(from);
+        let command = sent
+            .iter()
+            .find(|s| s.tx.kind == TxKind::Command)
+            .expect("a frame");
+        if k >= 10 {
+            delays.push(command.at.duration_since(at));
+            position_reads.extend(
+                sent.iter()
+                    .filter(|s| matches!(s.tx.kind, TxKind::PositionPoll(_)))
+                    .map(|s| s.tx.bytes.clone()),
+            );
+        }
+    }
+    // With 4 servos at 115 200 bit/s, five polls fit in a 20 ms period and leave room for one
+    // position read ...
+    assert!(
+        position_reads.len() >= 80,
+        "{} position reads in 90 periods",
+        position_reads.len()
+    );
+    // ... which asks for registers 42–43 only ...
+    for bytes in &position_reads {
+        assert_eq!(&bytes[3..7], &[0x0F, 0x2A, 0x02, 0x00], "{bytes:02X?}");
+    }
+    // ... never holds the bus when a goal arrives ...
+    assert!(delays.iter().all(|d| *d == Duration::ZERO), "{delays:?}");
+    // ... and takes nothing from full telemetry.
+    let polls = rig.m.counters().polls - polls_before;
+    let per_servo_hz = polls as f64 / rig.t.duration_since(t_start).as_secs_f64() / 4.0;
+    assert!(per_servo_hz > 60.0, "{per_servo_hz:.1} Hz per servo");
+}
+
+#[test]
+fn a_position_read_replaces_only_the_position_of_the_latest_telemetry() {
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    for n in 1..=4 {
+        rig.servo(n).stuck = true;
+    }
+    // Every period the rods stand somewhere else and draw another current: a value read tells
+    // the period it was read in.
+    let mut periods = Vec::new();
+    for k in 0..40i16 {
+        periods.push(rig.t);
+        for n in 1..=4u8 {
+            rig.servo(n).position = 2000 + k;
+            rig.servo(n).load = 100 + k as u16;
+            rig.set_goal(n, Goal::Position(MmCenti(k * 10 + i16::from(n))));
+        }
+        rig.run(ms(20));
+    }
+    let period_of = |t: Instant| periods.iter().rposition(|p| *p <= t).unwrap() as i16;
+    let status = rig.m.status();
+    let mut checked = 0;
+    for s in &status.servos {
+        let t = s.telemetry.expect("telemetry");
+        let polled = s.telemetry_at.expect("polled");
+        // The load is that of the last full poll, whatever was read since.
+        assert_eq!(
+            t.present_load.0,
+            100 + period_of(polled) as u16,
+            "servo {}",
+            s.id
+        );
+        match s.position_at {
+            Some(read) => {
+                assert!(read > polled);
+                assert_eq!(
+                    t.present_position.0,
+                    2000 + period_of(read),
+                    "servo {}",
+                    s.id
+                );
+                checked += 1;
+            }
+            None => assert_eq!(t.present_position.0, 2000 + period_of(polled)),
+        }
+    }
+    assert!(checked > 0, "no servo was last read by a position read");
+}
+
+/// Run `requests` requests like the bus thread does: look when [`BusMaster::reply_look_at`]
+/// says, and when part of the reply is missing, wait until it is all in (the tty's read
+/// threshold) and read it then. The n-th reply is late by `lateness(n)` besides the return
+/// delay. Returns, per answered request, the bytes missing at the first look and how long the
+/// reply had been whole when it was read.
+fn run_like_the_bus_thread(
+    rig: &mut Rig,
+    requests: usize,
+    mut lateness: impl FnMut(usize) -> Duration,
+) -> Vec<(usize, Duration)> {
+    let byte = rig.wire(1);
+    let mut out = Vec::new();
+    let mut sent = 0;
+    while sent < requests {
+        rig.latency = lateness(sent);
+        rig.transmit();
+        if !rig.m.reply_pending() {
+            rig.t = rig.m.poll_timeout().expect("a request is due").max(rig.t);
+            rig.m.handle_timeout(rig.t);
+            continue;
+        }
+        sent += 1;
+        let (at, bytes) = rig.reply.take().expect("the servo answers");
+        rig.t = rig
+            .t
+            .max(rig.m.reply_look_at().expect("a reply is awaited"));
+        let missing = at
+            .saturating_duration_since(rig.t)
+            .as_nanos()
+            .div_ceil(byte.as_nanos());
+        let missing = (missing as usize).min(bytes.len());
+        rig.m.handle_input(&bytes[..bytes.len() - missing], rig.t);
+        rig.m.handle_timeout(rig.t);
+        let read_at = if missing > 0 {
+            assert_eq!(rig.m.bytes_awaited(), Some(missing));
+            rig.t = at;
+            rig.m.handle_input(&bytes[bytes.len() - missing..], at);
+            at
+        } else {
+            rig.t
+        };
+        assert!(!rig.m.reply_pending());
+        out.push((missing, read_at.duration_since(at)));
+        rig.drain_events();
+    }
+    out
+}
+
+#[test]
+fn the_first_look_at_a_reply_learns_to_come_about_a_byte_before_its_end() {
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    let byte = rig.wire(1);
+    // Replies 200–380 µs later than the return delay says (the servo's processing, the
+    // adapter), in an order with no pattern.
+    let lateness = |n: usize| us(200 + (n as u64 * 7919 % 10) * 20);
+    run_like_the_bus_thread(&mut rig, 200, lateness);
+    let looks = run_like_the_bus_thread(&mut rig, 1000, |n| lateness(n + 200));
+    let learned = rig.m.reply_lateness();
+    assert!(
+        learned >= us(200) && learned <= us(380) + byte,
+        "learned {learned:?}"
+    );
+    // The bus is left idle after a reply (found whole at a look that came late) for less
+    // than a byte time on average ...
+    let idle: Duration = looks.iter().map(|(_, idle)| *idle).sum();
+    assert!(
+        idle / looks.len() as u32 <= byte,
+        "mean idle {:?}",
+        idle / looks.len() as u32
+    );
+    // ... and a look that comes early finds only the last few bytes missing (each one a
+    // wake-up of the thread waiting for them, in the kernel).
+    let missing: usize = looks.iter().map(|(m, _)| m).sum();
+    assert!(
+        missing <= looks.len() * 3,
+        "{missing} bytes missing at {} first looks",
+        looks.len()
+    );
+}
+
+#[test]
+fn without_a_learned_lateness_a_late_servo_costs_a_wait_for_many_bytes() {
+    // The baseline of the test above: at the start nothing is learned, and the first looks of
+    // replies 380 µs late come when more than four bytes are still on their way.
+    let mut rig = Rig::online_with_force(&[1]);
+    rig.settle();
+    assert_eq!(rig.m.reply_lateness(), Duration::ZERO);
+    let first = run_like_the_bus_thread(&mut rig, 1, |_| us(380));
+    assert!(first[0].0 >= 4, "{first:?}");
+    let later = run_like_the_bus_thread(&mut rig, 100, |_| us(380));
+    assert!(
+        later[60..].iter().all(|(m, _)| *m <= 2),
+        "{:?}",
+        &later[60..]
+    );
+}

@@ -10,6 +10,8 @@ pub enum TxKind {
     Command,
     /// A telemetry poll (reply code 09: registers 42–59).
     Poll(ServoId),
+    /// A position-only read (registers 42–43), in bus time too short for a telemetry poll.
+    PositionPoll(ServoId),
     /// A start-up read: registers 0–29 (identity, limits) or 30–41 (force, goal, max force).
     Init(ServoId),
     /// A force-enable write, answered with registers 30–41 to confirm it.

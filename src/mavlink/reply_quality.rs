@@ -130,6 +130,7 @@ mod tests {
             health,
             telemetry: None,
             telemetry_at: None,
+            position_at: None,
             age: None,
             flags: ReplyFlags::default(),
             goal: None,
