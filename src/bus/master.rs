@@ -702,11 +702,12 @@ impl BusMaster {
     /// time before replies have been found whole so far, never before
     /// [`BusMaster::reply_complete_at`]. `None` when no reply is pending.
     ///
-    /// The lateness is learned from the replies: a reply completed while the driver waited for
-    /// its last bytes tells when it completed (1/8 of the difference is taken); one found whole
-    /// at the first look completed earlier than that look, and lowers the lateness by 1/8 of a
-    /// byte time. Looking a byte early costs the driver one more wake-up in the kernel; looking
-    /// late would leave the bus idle.
+    /// The lateness is learned from the replies, as the one three in four stay under: a reply
+    /// completed while the driver waited for its last bytes tells when it completed, and
+    /// raises the lateness by 3/16 of a byte time if that was later; any other lowers it by
+    /// 1/16 (one found whole at the first look completed before that look). Looking early
+    /// costs the driver a wake-up in the kernel per byte still missing; looking late leaves the
+    /// bus idle.
     pub fn reply_look_at(&self) -> Option<Instant> {
         self.pending.as_ref().map(|p| self.look_at(p))
     }
@@ -722,19 +723,16 @@ impl BusMaster {
     }
 
     fn learn_lateness(&mut self, p: &Pending, now: Instant) {
-        let byte = self.cfg.wire_time(1);
-        if p.looked {
-            let seen = now
-                .saturating_duration_since(p.complete_at)
-                .min(self.cfg.turnaround);
-            if seen >= self.reply_lateness {
-                self.reply_lateness += (seen - self.reply_lateness) / 8;
-            } else {
-                self.reply_lateness -= (self.reply_lateness - seen) / 8;
-            }
+        // Fixed steps, three up for one down, track the lateness three replies in four stay
+        // under; one reply, however late (a servo or adapter that stalled), moves it by 3/16
+        // of a byte time only.
+        let step = self.cfg.wire_time(1) / 16;
+        let later = p.looked && now.saturating_duration_since(p.complete_at) > self.reply_lateness;
+        self.reply_lateness = if later {
+            (self.reply_lateness + step * 3).min(self.cfg.turnaround)
         } else {
-            self.reply_lateness = self.reply_lateness.saturating_sub(byte / 8);
-        }
+            self.reply_lateness.saturating_sub(step)
+        };
     }
 
     /// The next event, oldest first.

@@ -1532,3 +1532,18 @@ fn without_a_learned_lateness_a_late_servo_costs_a_wait_for_many_bytes() {
         &later[60..]
     );
 }
+
+#[test]
+fn one_very_late_reply_does_not_delay_the_looks_at_the_next_ones() {
+    let mut rig = Rig::online_with_force(&[1, 2]);
+    let byte = rig.wire(1);
+    run_like_the_bus_thread(&mut rig, 100, |_| us(300));
+    let learned = rig.m.reply_lateness();
+    // One reply 1.5 ms late (the servo or the adapter stalled), then the usual again.
+    let looks = run_like_the_bus_thread(&mut rig, 20, |n| if n == 0 { us(1800) } else { us(300) });
+    assert!(rig.m.reply_lateness() <= learned + byte / 4);
+    assert!(
+        looks[1..].iter().all(|(_, idle)| *idle <= byte),
+        "{looks:?}"
+    );
+}
