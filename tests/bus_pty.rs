@@ -173,3 +173,27 @@ async fn shutdown_with_force_off_leaves_every_servo_limp() {
         );
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_port_is_left_reading_byte_by_byte_after_shutdown() {
+    use nix::sys::termios::{SpecialCharacterIndices, tcgetattr};
+    let ids = [1, 2];
+    let sim = spawn_sim(sim_config(&ids, 115_200));
+    let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
+    // Online means replies were awaited with the read threshold raised.
+    wait_status(&bus, "every servo online", |s| {
+        s.servos.iter().all(|s| s.health == Health::Online)
+    })
+    .await;
+    bus.shutdown(ShutdownForce::AsIs).await;
+    let port = std::fs::File::open(sim.path()).expect("the pty is still there");
+    let termios = tcgetattr(&port).expect("a tty");
+    assert_eq!(
+        termios.control_chars[SpecialCharacterIndices::VMIN as usize],
+        1
+    );
+    assert_eq!(
+        termios.control_chars[SpecialCharacterIndices::VTIME as usize],
+        0
+    );
+}

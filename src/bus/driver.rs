@@ -544,19 +544,7 @@ impl ReplyWaiter {
     /// The tty's read threshold (termios `VMIN`) is set to `bytes` first, so the kernel makes
     /// the port readable only then; reads stay non-blocking and return whatever is there.
     fn wait_for(&mut self, bytes: usize, until: Instant) {
-        let vmin = u8::try_from(bytes.max(1)).unwrap_or(u8::MAX);
-        if let Some(termios) = self.termios.as_mut()
-            && vmin != self.vmin
-        {
-            termios.control_chars[SpecialCharacterIndices::VMIN as usize] = vmin;
-            match tcsetattr(&self.port, SetArg::TCSANOW, termios) {
-                Ok(()) => self.vmin = vmin,
-                Err(e) => {
-                    tracing::debug!("read threshold not settable, waking at every byte: {e}");
-                    self.termios = None;
-                }
-            }
-        }
+        self.set_threshold(u8::try_from(bytes.max(1)).unwrap_or(u8::MAX));
         let left = until.saturating_duration_since(Instant::now());
         if left.is_zero() {
             return;
@@ -564,5 +552,32 @@ impl ReplyWaiter {
         let mut fds = [PollFd::new(self.port.as_fd(), PollFlags::POLLIN)];
         // Readable, failed, hung up or timed out: the bus thread reads and looks again.
         let _ = ppoll(&mut fds, Some(TimeSpec::from_duration(left)), None);
+    }
+
+    /// Set the tty's read threshold to `vmin` bytes (no system call when it is already so).
+    fn set_threshold(&mut self, vmin: u8) {
+        let Some(termios) = self.termios.as_mut() else {
+            return;
+        };
+        if vmin == self.vmin {
+            return;
+        }
+        termios.control_chars[SpecialCharacterIndices::VMIN as usize] = vmin;
+        match tcsetattr(&self.port, SetArg::TCSANOW, termios) {
+            Ok(()) => self.vmin = vmin,
+            Err(e) => {
+                tracing::debug!("read threshold not settable, waking at every byte: {e}");
+                self.termios = None;
+            }
+        }
+    }
+}
+
+impl Drop for ReplyWaiter {
+    /// Leave the tty reading byte by byte, as it was opened, for whoever opens it next.
+    fn drop(&mut self) {
+        if self.vmin > 1 {
+            self.set_threshold(1);
+        }
     }
 }
