@@ -16,10 +16,7 @@ async fn an_unplugged_servo_goes_offline_and_is_reinitialised_when_plugged_back(
     let sim = spawn_sim(sim_config(&ids, 115_200));
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
     let mut events = bus.events();
-    wait_status(&bus, "every servo online", |s| {
-        s.servos.iter().all(|s| s.health == Health::Online)
-    })
-    .await;
+    every_servo_online(&bus).await;
     for n in ids {
         bus.set_goal(id(n), Goal::Position(MmCenti(100)));
     }
@@ -99,10 +96,7 @@ async fn an_echoing_adapter_works() {
     let sim = spawn_sim(sim_config(&ids, 115_200));
     sim.handle().set_echo(true);
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
-    wait_status(&bus, "every servo online", |s| {
-        s.servos.iter().all(|s| s.health == Health::Online)
-    })
-    .await;
+    every_servo_online(&bus).await;
     for n in ids {
         bus.set_goal(id(n), Goal::Position(MmCenti(-50 * i16::from(n))));
     }
@@ -128,10 +122,7 @@ async fn a_port_that_disappears_is_reopened() {
     let sim = spawn_sim(config);
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), link.clone());
     let mut events = bus.events();
-    wait_status(&bus, "every servo online", |s| {
-        s.servos.iter().all(|s| s.health == Health::Online)
-    })
-    .await;
+    every_servo_online(&bus).await;
     for n in ids {
         bus.set_goal(id(n), Goal::Position(MmCenti(30)));
     }
@@ -171,10 +162,7 @@ async fn an_overheated_servo_is_reported_and_not_hammered_with_force_on() {
     let sim = spawn_sim(sim_config(&ids, 115_200));
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
     let mut events = bus.events();
-    wait_status(&bus, "every servo online", |s| {
-        s.servos.iter().all(|s| s.health == Health::Online)
-    })
-    .await;
+    every_servo_online(&bus).await;
     for n in ids {
         bus.set_goal(id(n), Goal::Position(MmCenti(0)));
     }

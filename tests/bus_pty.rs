@@ -5,7 +5,7 @@
 mod bus_support;
 
 use bus_support::*;
-use lj9da_bridge::bus::{ForceState, Goal, Health, ShutdownForce, spawn_bus};
+use lj9da_bridge::bus::{ForceState, Goal, ShutdownForce, spawn_bus};
 use lj9da_bridge::protocol::{BaudRate, MmCenti};
 use lj9da_sim::{BusEvent as SimEvent, Force, HostPacket};
 use std::time::Duration;
@@ -15,10 +15,7 @@ async fn servos_reach_their_goals_and_telemetry_is_published() {
     let ids = [1, 2, 3, 4];
     let sim = spawn_sim(sim_config(&ids, 115_200));
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
-    let st = wait_status(&bus, "every servo online", |s| {
-        s.servos.iter().all(|s| s.health == Health::Online)
-    })
-    .await;
+    let st = every_servo_online(&bus).await;
     for s in &st.servos {
         assert_eq!(s.model, Some(0x7510));
         assert_eq!(s.force, ForceState::Off, "no force before a goal");
@@ -84,10 +81,7 @@ async fn the_line_is_never_talked_over_and_every_request_is_answered() {
     let ids = [1, 2, 3];
     let sim = spawn_sim(sim_config(&ids, 460_800));
     let bus = spawn_bus(bus_config(&ids, BaudRate::B460800), sim.path());
-    wait_status(&bus, "every servo online", |s| {
-        s.servos.iter().all(|s| s.health == Health::Online)
-    })
-    .await;
+    every_servo_online(&bus).await;
     // Goals at ~500 Hz for a second while telemetry is polled in the gaps.
     for k in 0..500i16 {
         for n in ids {
@@ -126,10 +120,7 @@ async fn the_goals_of_one_message_leave_in_one_long_packet() {
     cfg.verify_interval = Duration::from_secs(5);
     cfg.stale_after = Duration::from_secs(20);
     let bus = spawn_bus(cfg, sim.path());
-    wait_status(&bus, "every servo online", |s| {
-        s.servos.iter().all(|s| s.health == Health::Online)
-    })
-    .await;
+    every_servo_online(&bus).await;
     bus.set_goals(ids.map(|n| (id(n), Goal::Position(MmCenti(0)))));
     wait_status(&bus, "force on", all_online_with_force).await;
     tokio::time::sleep(Duration::from_millis(100)).await;
@@ -154,10 +145,7 @@ async fn shutdown_with_force_off_leaves_every_servo_limp() {
     let ids = [1, 2];
     let sim = spawn_sim(sim_config(&ids, 115_200));
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
-    wait_status(&bus, "every servo online", |s| {
-        s.servos.iter().all(|s| s.health == Health::Online)
-    })
-    .await;
+    every_servo_online(&bus).await;
     for n in ids {
         bus.set_goal(id(n), Goal::Position(MmCenti(0)));
     }
@@ -181,10 +169,7 @@ async fn the_port_is_left_reading_byte_by_byte_after_shutdown() {
     let sim = spawn_sim(sim_config(&ids, 115_200));
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
     // Online means replies were awaited with the read threshold raised.
-    wait_status(&bus, "every servo online", |s| {
-        s.servos.iter().all(|s| s.health == Health::Online)
-    })
-    .await;
+    every_servo_online(&bus).await;
     bus.shutdown(ShutdownForce::AsIs).await;
     let port = std::fs::File::open(sim.path()).expect("the pty is still there");
     let termios = tcgetattr(&port).expect("a tty");

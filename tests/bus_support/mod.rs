@@ -4,7 +4,7 @@
 
 #![allow(dead_code)]
 
-use lj9da_bridge::bus::{BusConfig, BusEvent, BusHandle, BusStatus, ServoSetup};
+use lj9da_bridge::bus::{BusConfig, BusEvent, BusHandle, BusStatus, Health, ServoSetup};
 use lj9da_bridge::protocol::{BaudRate, ServoId};
 use lj9da_sim::{SimBus, SimConfig};
 use std::path::PathBuf;
@@ -77,6 +77,14 @@ pub async fn wait_status(
         }
         let _ = tokio::time::timeout(Duration::from_millis(50), watch.changed()).await;
     }
+}
+
+/// Wait until every servo of the bus is online.
+pub async fn every_servo_online(bus: &BusHandle) -> BusStatus {
+    wait_status(bus, "every servo online", |s| {
+        s.servos.iter().all(|s| s.health == Health::Online)
+    })
+    .await
 }
 
 /// Wait for an event matching `want`; fail with `what` otherwise.
