@@ -34,7 +34,7 @@ use super::status::BusStatus;
 use crate::protocol::{BaudRate, ServoId};
 use nix::fcntl::{FcntlArg, OFlag, fcntl};
 use nix::poll::{PollFd, PollFlags, ppoll};
-use nix::sys::termios::{SetArg, SpecialCharacterIndices, Termios, tcgetattr, tcsetattr};
+use nix::sys::termios::{SetArg, SpecialCharacterIndices, Termios, tcdrain, tcgetattr, tcsetattr};
 use nix::sys::time::TimeSpec;
 use std::fs::File;
 use std::io::{Read, Write};
@@ -494,13 +494,17 @@ impl Driver {
                 (
                     wake_at,
                     reply_wait,
-                    done.then(|| core.master.wire_idle_at()),
+                    // The final packets' wire time, plus the allowance for the adapter and
+                    // the servo (a USB adapter may still hold the last bytes).
+                    done.then(|| core.master.wire_idle_at() + core.master.config().turnaround),
                 )
             };
             self.publish(false);
             if let Some(idle) = wire_idle_at {
-                // Let the final packets leave the wire before the port closes.
+                // Let the final packets leave the wire (and the kernel's output buffer) before
+                // the port closes.
                 std::thread::sleep(idle.saturating_duration_since(Instant::now()));
+                let _ = tcdrain(&waiter.port);
                 return Exit::Shutdown;
             }
             if let Some((bytes, deadline)) = reply_wait {
