@@ -361,17 +361,9 @@ impl BusMaster {
             return self.long_packet(now);
         }
         if self.rhythm.hold_until(now, self.poll_busy()).is_some() {
-            // A full poll would still hold the bus when the next goal is due; a position-only
-            // read may end in time.
-            if self
-                .rhythm
-                .hold_until(now, self.position_poll_busy())
-                .is_none()
-                && let Some(i) = self.position_poll_servo()
-            {
-                return Some(self.start(i, Transaction::Position, now));
-            }
-            return None;
+            return self
+                .position_read_fitting(now)
+                .map(|i| self.start(i, Transaction::Position, now));
         }
         let due = |at: Option<Instant>| at.is_none_or(|t| t <= now);
         if let Some((i, mode)) = self.servos.iter().enumerate().find_map(|(i, s)| {
@@ -411,8 +403,16 @@ impl BusMaster {
         self.poll_busy() - self.cfg.wire_time(26 - 10)
     }
 
-    /// The ready servo whose position was read longest ago, for a position-only read.
-    fn position_poll_servo(&self) -> Option<usize> {
+    /// When a full poll would still hold the bus at the next goal: the servo for a position-only
+    /// read that ends in time (the ready servo whose position was read longest ago), if any.
+    fn position_read_fitting(&self, now: Instant) -> Option<usize> {
+        if self
+            .rhythm
+            .hold_until(now, self.position_poll_busy())
+            .is_some()
+        {
+            return None;
+        }
         self.servos
             .iter()
             .enumerate()
@@ -660,11 +660,7 @@ impl BusMaster {
         // arriving meanwhile is taken at once through `set_goal`); a position-only read that
         // ends before the window opens is due at once.
         if self.rhythm.hold_until(self.now, self.poll_busy()).is_some()
-            && self
-                .rhythm
-                .hold_until(self.now, self.position_poll_busy())
-                .is_none()
-            && self.position_poll_servo().is_some()
+            && self.position_read_fitting(self.now).is_some()
         {
             return Some(self.now);
         }
