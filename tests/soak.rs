@@ -238,6 +238,17 @@ fn exactly(expected: String) -> impl Fn(&str) -> bool {
     move |t| t == expected
 }
 
+/// [`expect_text`] for a STATUSTEXT that must read exactly `text`.
+async fn expect_exact_text(
+    chain: &Chain,
+    since: Instant,
+    severity: MavSeverity,
+    text: &str,
+    timeout: Duration,
+) -> Duration {
+    expect_text(chain, since, severity, text, timeout, exactly(text.into())).await
+}
+
 /// Wait until `cond` holds, at most `timeout`; on failure panic with `what`, the bridge's view
 /// and every STATUSTEXT heard so far. Returns how long it took.
 async fn wait_until(
@@ -743,13 +754,12 @@ impl Soak {
             view.borrow().servos[1].health == Health::Offline
         })
         .await;
-        let lost = expect_text(
+        let lost = expect_exact_text(
             &self.chain,
             start,
             MavSeverity::MAV_SEVERITY_CRITICAL,
             "aileron_right: servo lost",
             S(5),
-            exactly("aileron_right: servo lost".into()),
         )
         .await;
         tokio::time::sleep(S(3).saturating_sub(start.elapsed())).await;
@@ -758,13 +768,12 @@ impl Soak {
         let recovery = self
             .all_online("servo 2 online after being plugged in")
             .await;
-        let back = expect_text(
+        let back = expect_exact_text(
             &self.chain,
             plugged,
             MavSeverity::MAV_SEVERITY_NOTICE,
             "aileron_right: servo back",
             S(6),
-            exactly("aileron_right: servo back".into()),
         )
         .await;
         self.steps(STEP_BOUND).await;
@@ -789,13 +798,12 @@ impl Soak {
         let goals = goals_of(self.n);
         self.goals = goals;
         self.ap.set(goals);
-        let stalled = expect_text(
+        let stalled = expect_exact_text(
             &self.chain,
             start,
             MavSeverity::MAV_SEVERITY_ERROR,
             "elevator: stalled",
             S(4),
-            exactly("elevator: stalled".into()),
         )
         .await;
         // The view is refreshed at most every 50 ms: it may follow the STATUSTEXT a little.
@@ -811,13 +819,12 @@ impl Soak {
         assert!(self.sim.set_stalled(3, false));
         let freed = Instant::now();
         let recovery = self.all_online("every servo online after the stall").await;
-        let moving = expect_text(
+        let moving = expect_exact_text(
             &self.chain,
             freed,
             MavSeverity::MAV_SEVERITY_NOTICE,
             "elevator: moving again",
             S(6),
-            exactly("elevator: moving again".into()),
         )
         .await;
         // The freed rod reaches the goal it was blocked from.
@@ -953,13 +960,12 @@ impl Soak {
             },
         )
         .await;
-        let text = expect_text(
+        let text = expect_exact_text(
             &self.chain,
             start,
             MavSeverity::MAV_SEVERITY_WARNING,
             "LJ9DA failsafe: no outputs for 400 ms",
             S(3),
-            exactly("LJ9DA failsafe: no outputs for 400 ms".into()),
         )
         .await;
         tokio::time::sleep(MS(1500).saturating_sub(start.elapsed())).await;
@@ -969,13 +975,12 @@ impl Soak {
             !view.borrow().failsafe
         })
         .await;
-        let cleared = expect_text(
+        let cleared = expect_exact_text(
             &self.chain,
             resumed,
             MavSeverity::MAV_SEVERITY_NOTICE,
             "LJ9DA failsafe cleared",
             S(5),
-            exactly("LJ9DA failsafe cleared".into()),
         )
         .await;
         // The autopilot's goals again, not the failsafe's.
@@ -1150,13 +1155,12 @@ impl Soak {
         tokio::task::spawn_blocking(move || sim.disconnect_port())
             .await
             .expect("disconnect");
-        let lost = expect_text(
+        let lost = expect_exact_text(
             &self.chain,
             start,
             MavSeverity::MAV_SEVERITY_CRITICAL,
             "LJ9DA bus wing: port lost",
             S(3),
-            exactly("LJ9DA bus wing: port lost".into()),
         )
         .await;
         tokio::time::sleep(S(1).saturating_sub(start.elapsed())).await;
@@ -1169,13 +1173,12 @@ impl Soak {
         let recovery = self
             .all_online("every servo online after the port came back")
             .await;
-        let back = expect_text(
+        let back = expect_exact_text(
             &self.chain,
             reconnected,
             MavSeverity::MAV_SEVERITY_NOTICE,
             "LJ9DA bus wing: port back",
             S(6),
-            exactly("LJ9DA bus wing: port back".into()),
         )
         .await;
         self.steps(STEP_BOUND).await;
@@ -1202,13 +1205,12 @@ impl Soak {
         );
         assert!(self.sim.unplug(3));
         self.sim.set_echo(true);
-        let lost = expect_text(
+        let lost = expect_exact_text(
             &self.chain,
             start,
             MavSeverity::MAV_SEVERITY_CRITICAL,
             "elevator: servo lost",
             S(5),
-            exactly("elevator: servo lost".into()),
         )
         .await;
         let bad = expect_text(
@@ -1227,13 +1229,12 @@ impl Soak {
         let recovery = self
             .all_online("every servo online after the combined faults")
             .await;
-        let back = expect_text(
+        let back = expect_exact_text(
             &self.chain,
             cleared,
             MavSeverity::MAV_SEVERITY_NOTICE,
             "elevator: servo back",
             S(6),
-            exactly("elevator: servo back".into()),
         )
         .await;
         let ok = self.replies_recovered(&name, start, cleared).await;
