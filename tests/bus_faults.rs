@@ -17,10 +17,7 @@ async fn an_unplugged_servo_goes_offline_and_is_reinitialised_when_plugged_back(
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
     let mut events = bus.events();
     every_servo_online(&bus).await;
-    for n in ids {
-        bus.set_goal(id(n), Goal::Position(MmCenti(100)));
-    }
-    wait_status(&bus, "force on", all_online_with_force).await;
+    hold_with_force_on(&bus, &ids, MmCenti(100)).await;
 
     sim.handle().unplug(2);
     wait_event(&mut events, "servo 2 lost", |e| {
@@ -123,10 +120,7 @@ async fn a_port_that_disappears_is_reopened() {
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), link.clone());
     let mut events = bus.events();
     every_servo_online(&bus).await;
-    for n in ids {
-        bus.set_goal(id(n), Goal::Position(MmCenti(30)));
-    }
-    wait_status(&bus, "force on", all_online_with_force).await;
+    hold_with_force_on(&bus, &ids, MmCenti(30)).await;
 
     sim.handle().disconnect_port();
     wait_event(&mut events, "port lost", |e| {
@@ -163,10 +157,7 @@ async fn an_overheated_servo_is_reported_and_not_hammered_with_force_on() {
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
     let mut events = bus.events();
     every_servo_online(&bus).await;
-    for n in ids {
-        bus.set_goal(id(n), Goal::Position(MmCenti(0)));
-    }
-    wait_status(&bus, "force on", all_online_with_force).await;
+    hold_with_force_on(&bus, &ids, MmCenti(0)).await;
 
     sim.handle().overheat(1);
     wait_event(&mut events, "temperature alarm", |e| {
@@ -222,12 +213,8 @@ async fn a_blocked_rod_is_reported_stalled() {
     let sim = spawn_sim(sim_config(&ids, 115_200));
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
     let mut events = bus.events();
-    wait_status(&bus, "online", |s| {
-        s.servos.iter().all(|s| s.health == Health::Online)
-    })
-    .await;
-    bus.set_goal(id(1), Goal::Position(MmCenti(0)));
-    wait_status(&bus, "force on", all_online_with_force).await;
+    every_servo_online(&bus).await;
+    hold_with_force_on(&bus, &ids, MmCenti(0)).await;
     sim.handle().set_stalled(1, true);
     bus.set_goal(id(1), Goal::Position(MmCenti(1000)));
     wait_event(&mut events, "stalled", |e| {

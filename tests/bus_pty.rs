@@ -146,10 +146,7 @@ async fn shutdown_with_force_off_leaves_every_servo_limp() {
     let sim = spawn_sim(sim_config(&ids, 115_200));
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
     every_servo_online(&bus).await;
-    for n in ids {
-        bus.set_goal(id(n), Goal::Position(MmCenti(0)));
-    }
-    wait_status(&bus, "force on", all_online_with_force).await;
+    hold_with_force_on(&bus, &ids, MmCenti(0)).await;
     assert_eq!(sim.handle().snapshot(1).unwrap().force, Force::On);
     bus.shutdown(ShutdownForce::Off).await;
     assert!(bus.is_finished());

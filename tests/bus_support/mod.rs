@@ -4,8 +4,8 @@
 
 #![allow(dead_code)]
 
-use lj9da_bridge::bus::{BusConfig, BusEvent, BusHandle, BusStatus, Health, ServoSetup};
-use lj9da_bridge::protocol::{BaudRate, ServoId};
+use lj9da_bridge::bus::{BusConfig, BusEvent, BusHandle, BusStatus, Goal, Health, ServoSetup};
+use lj9da_bridge::protocol::{BaudRate, MmCenti, ServoId};
 use lj9da_sim::{SimBus, SimConfig};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -85,6 +85,14 @@ pub async fn every_servo_online(bus: &BusHandle) -> BusStatus {
         s.servos.iter().all(|s| s.health == Health::Online)
     })
     .await
+}
+
+/// Give every servo in `ids` the goal `position` and wait until all hold it with force ON.
+pub async fn hold_with_force_on(bus: &BusHandle, ids: &[u8], position: MmCenti) {
+    for &n in ids {
+        bus.set_goal(id(n), Goal::Position(position));
+    }
+    wait_status(bus, "force on", all_online_with_force).await;
 }
 
 /// Wait for an event matching `want`; fail with `what` otherwise.
