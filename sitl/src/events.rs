@@ -22,6 +22,14 @@ pub enum BusEvent {
     Collision { at: Instant, id: u8 },
     /// A write the manual forbids; a real servo might have been damaged.
     Damage(DamageEvent),
+    /// The simulator's thread handed bytes to the host later than their wire instants (it did not run
+    /// in time): until `at` the host saw a slower line than the model's. `due` is when the last byte
+    /// of the write was complete on the modelled wire.
+    HandedLate {
+        due: Instant,
+        at: Instant,
+        bytes: usize,
+    },
     /// A servo that was addressed did not act on (part of) a packet.
     Ignored {
         at: Instant,
@@ -136,4 +144,7 @@ pub struct BusStats {
     pub echo_bytes: u64,
     /// Packets (or reply requests) an addressed servo ignored.
     pub ignored: u64,
+    /// Writes toward the host that left more than [`crate::runtime::LATE_REPORT`] after their last
+    /// byte was due (the simulator's thread did not run in time).
+    pub handed_late: u64,
 }

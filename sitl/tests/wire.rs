@@ -28,6 +28,34 @@ fn a_reply_leaves_after_the_request_latency_and_takes_its_wire_time() {
 }
 
 #[test]
+fn the_end_of_a_reply_is_announced_once_only_its_last_byte_is_queued() {
+    let mut bus = VirtualBus::with_ids(&[1]);
+    let byte = byte_time(115_200);
+    let sent_at = bus.now;
+    bus.write(&request(1, 0x09));
+    assert_eq!(
+        bus.model.transmission_ends_at(),
+        None,
+        "request still arriving"
+    );
+    let last_at = sent_at + byte * 8 + Duration::from_micros(150) + byte * 26;
+    let halfway = bus.wait(last_at - sent_at - byte * 13);
+    assert_eq!(halfway.len(), 13);
+    assert_eq!(
+        bus.model.transmission_ends_at(),
+        None,
+        "13 bytes still queued"
+    );
+    // Step to just before the last byte: 25 bytes handed over, one queued.
+    let early = bus.wait(byte * 13 - Duration::from_nanos(1));
+    assert_eq!(halfway.len() + early.len(), 25);
+    assert_eq!(bus.model.transmission_ends_at(), Some(last_at));
+    let last = bus.wait(Duration::from_nanos(1));
+    assert_eq!(last.len(), 1);
+    assert_eq!(bus.model.transmission_ends_at(), None, "nothing queued");
+}
+
+#[test]
 fn the_return_delay_time_postpones_the_reply() {
     let mut bus = VirtualBus::with_ids(&[1]);
     bus.transact(&RETURN_DELAY_1MS);

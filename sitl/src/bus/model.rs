@@ -256,6 +256,21 @@ impl BusModel {
         }
     }
 
+    /// When the next deadline hands the host the last byte queued toward it (the end of a reply),
+    /// that instant: the host is waiting for it, so the runtime should not be late with it.
+    pub fn transmission_ends_at(&self) -> Option<Instant> {
+        match (self.tx_queue.front(), self.tx_queue.len()) {
+            (Some(tx), 1) if self.next_deadline() == Some(tx.at) => Some(tx.at),
+            _ => None,
+        }
+    }
+
+    /// The runtime handed the host bytes whose last one was due at `due` only at `at`.
+    pub fn record_late_handover(&mut self, due: Instant, at: Instant, bytes: usize) {
+        self.stats.handed_late += 1;
+        self.push_event(BusEvent::HandedLate { due, at, bytes });
+    }
+
     /// The link to the host went away (device disappeared): bytes in flight are lost.
     pub fn reset_link(&mut self) {
         self.rx_queue.clear();

@@ -4,6 +4,11 @@
 //! therefore sleeps in `ppoll(2)` (nanosecond timeout, timer slack lowered to 1 µs) on the host descriptor
 //! until the next deadline of the [`BusModel`], and wakes at once when the host writes. Host bytes are
 //! stamped with the instant `read()` returned, before anything else is done with them.
+//!
+//! A thread woken from `ppoll` runs some tens of µs after its timeout on a loaded or virtual machine. The
+//! last byte of a reply is what the host waits for, so the thread wakes [`SPIN_AHEAD`] before it is due
+//! and spins until the instant, as a UART would hand it over when its stop bit ends. Other bytes are
+//! written when the thread wakes (the host waits for the whole reply, not for each byte).
 
 pub mod link;
 pub mod pty;
@@ -31,6 +36,13 @@ use link::{Link, PtyLink, TcpLink};
 
 /// The bus thread wakes at least this often, even with nothing due.
 const HOUSEKEEPING_PERIOD: Duration = Duration::from_millis(20);
+/// How early the bus thread wakes to hand over the last byte of a reply on time (see the module docs):
+/// above the usual wake-up latency of a virtual machine, and at most about one byte time of spinning per
+/// reply.
+const SPIN_AHEAD: Duration = Duration::from_micros(100);
+/// A write toward the host later than this after its last byte was due is reported
+/// ([`BusEvent::HandedLate`]): the host then saw the simulator's lateness, not the model's line.
+pub const LATE_REPORT: Duration = Duration::from_micros(200);
 /// How long `disconnect_port` / `reconnect_port` wait for the bus thread.
 const COMMAND_TIMEOUT: Duration = Duration::from_secs(5);
 
@@ -353,17 +365,28 @@ fn run_bus(shared: Arc<Shared>, mut link: Link, wake_reader: UnixStream) {
         run_commands(&shared, &mut link);
 
         let now = Instant::now();
-        let deadline = shared.model().next_deadline();
-        let timeout = deadline.map_or(HOUSEKEEPING_PERIOD, |deadline| {
-            deadline.saturating_duration_since(now)
-        });
+        let (deadline, reply_ends) = {
+            let model = shared.model();
+            (model.next_deadline(), model.transmission_ends_at())
+        };
+        let wake_at = reply_ends.map_or(deadline, |at| at.checked_sub(SPIN_AHEAD));
+        let timeout = wake_at.map_or(HOUSEKEEPING_PERIOD, |at| at.saturating_duration_since(now));
         let timeout = timeout.min(HOUSEKEEPING_PERIOD);
+        let mut input = false;
         if !timeout.is_zero() {
             let mut fds = vec![PollFd::new(wake_reader.as_fd(), PollFlags::POLLIN)];
             if let Some(fd) = link.poll_fd() {
                 fds.push(PollFd::new(fd, PollFlags::POLLIN));
             }
-            let _ = ppoll(&mut fds, Some(TimeSpec::from_duration(timeout)), None);
+            input = ppoll(&mut fds, Some(TimeSpec::from_duration(timeout)), None)
+                .is_ok_and(|ready| ready > 0);
+        }
+        if let Some(at) = reply_ends
+            && !input
+        {
+            while Instant::now() < at {
+                std::hint::spin_loop();
+            }
         }
         {
             use std::io::Read;
@@ -379,7 +402,7 @@ fn run_bus(shared: Arc<Shared>, mut link: Link, wake_reader: UnixStream) {
         let host_baud = baud_override.or_else(|| if is_tcp { None } else { link.host_baud() });
 
         let now = Instant::now();
-        let (transmit, events) = {
+        let (transmit, mut events) = {
             let mut model = shared.model();
             let host_baud = host_baud.or_else(|| is_tcp.then(|| model.default_baud()));
             for (read_at, bytes) in &chunks {
@@ -392,6 +415,14 @@ fn run_bus(shared: Arc<Shared>, mut link: Link, wake_reader: UnixStream) {
         if !transmit.is_empty() {
             let bytes: Vec<u8> = transmit.iter().map(|tx| tx.byte).collect();
             link.write(&bytes);
+            let handed_at = Instant::now();
+            if let Some(due) = transmit.last().map(|tx| tx.at)
+                && handed_at.saturating_duration_since(due) > LATE_REPORT
+            {
+                let mut model = shared.model();
+                model.record_late_handover(due, handed_at, bytes.len());
+                events.extend(model.drain_events());
+            }
         }
         for event in &events {
             tracing::debug!(?event, "bus");
