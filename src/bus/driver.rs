@@ -54,6 +54,10 @@ const STATUS_REFRESH: Duration = Duration::from_millis(100);
 /// 115 200 bit/s.
 const TIMER_SLACK_NS: u64 = 1_000;
 
+/// A wake-up this long after the instant slept until is counted as late
+/// ([`super::BusCounters::late_wakeups`]).
+const LATE_WAKEUP: Duration = Duration::from_micros(500);
+
 /// Called in the bus thread with every status it publishes (see [`spawn_bus_observed`]).
 pub type StatusObserver = Box<dyn FnMut(&BusStatus) + Send>;
 
@@ -138,8 +142,10 @@ impl Shared {
         self.wake.notify_one();
     }
 
-    /// Sleep until `until`, or until woken; returns the core locked again.
+    /// Sleep until `until`, or until woken; returns the core locked again. A wake-up more than
+    /// [`LATE_WAKEUP`] after `until` is counted.
     fn sleep<'a>(&'a self, mut core: MutexGuard<'a, Core>, until: Instant) -> MutexGuard<'a, Core> {
+        let mut slept = false;
         while !core.woken {
             let Some(left) = until
                 .checked_duration_since(Instant::now())
@@ -147,10 +153,14 @@ impl Shared {
             else {
                 break;
             };
+            slept = true;
             core = match self.wake.wait_timeout(core, left) {
                 Ok((core, _)) => core,
                 Err(poisoned) => poisoned.into_inner().0,
             };
+        }
+        if slept && !core.woken && Instant::now().saturating_duration_since(until) > LATE_WAKEUP {
+            core.master.note_late_wakeup();
         }
         core.woken = false;
         core
@@ -508,7 +518,9 @@ impl Driver {
                 return Exit::Shutdown;
             }
             if let Some((bytes, deadline)) = reply_wait {
-                waiter.wait_for(bytes, deadline);
+                if waiter.wait_for(bytes, deadline) == Waited::Late {
+                    self.shared.core().master.note_late_wakeup();
+                }
                 continue;
             }
             let core = self.shared.core();
@@ -529,6 +541,13 @@ struct ReplyWaiter {
     vmin: u8,
 }
 
+/// Whether a [`ReplyWaiter::wait_for`] that timed out came back late (see [`LATE_WAKEUP`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Waited {
+    InTime,
+    Late,
+}
+
 impl ReplyWaiter {
     fn new(port: &File) -> std::io::Result<Self> {
         let port = port.try_clone()?;
@@ -547,15 +566,20 @@ impl ReplyWaiter {
     /// Block until `bytes` more bytes can be read (or the port failed), or until `until`.
     /// The tty's read threshold (termios `VMIN`) is set to `bytes` first, so the kernel makes
     /// the port readable only then; reads stay non-blocking and return whatever is there.
-    fn wait_for(&mut self, bytes: usize, until: Instant) {
+    fn wait_for(&mut self, bytes: usize, until: Instant) -> Waited {
         self.set_threshold(u8::try_from(bytes.max(1)).unwrap_or(u8::MAX));
         let left = until.saturating_duration_since(Instant::now());
         if left.is_zero() {
-            return;
+            return Waited::InTime;
         }
         let mut fds = [PollFd::new(self.port.as_fd(), PollFlags::POLLIN)];
         // Readable, failed, hung up or timed out: the bus thread reads and looks again.
-        let _ = ppoll(&mut fds, Some(TimeSpec::from_duration(left)), None);
+        let timed_out = ppoll(&mut fds, Some(TimeSpec::from_duration(left)), None) == Ok(0);
+        if timed_out && Instant::now().saturating_duration_since(until) > LATE_WAKEUP {
+            Waited::Late
+        } else {
+            Waited::InTime
+        }
     }
 
     /// Set the tty's read threshold to `vmin` bytes (no system call when it is already so).

@@ -731,6 +731,11 @@ impl BusMaster {
         };
     }
 
+    /// The driver's thread woke late (see [`BusCounters::late_wakeups`]).
+    pub fn note_late_wakeup(&mut self) {
+        self.counters.late_wakeups += 1;
+    }
+
     /// The next event, oldest first.
     pub fn poll_event(&mut self) -> Option<BusEvent> {
         self.events.pop_front()

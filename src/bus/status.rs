@@ -126,6 +126,10 @@ pub struct BusCounters {
     /// Wire time of the bytes written plus that of the valid replies received, in ns: the
     /// numerator of bus utilisation.
     pub wire_busy_ns: u64,
+    /// Times the bus thread ran more than 0.5 ms after the instant it slept until: the machine
+    /// did not schedule it in time (an overloaded companion computer, or a virtual machine's
+    /// host), and the bus sat idle meanwhile.
+    pub late_wakeups: u64,
 }
 
 /// A snapshot of one bus.

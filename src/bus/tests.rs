@@ -1355,6 +1355,57 @@ fn periodic_goals_find_the_bus_free_and_the_time_left_is_read() {
 }
 
 #[test]
+fn a_goal_waits_for_the_reply_in_flight_and_nothing_else() {
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    // Irregular arrivals (no rhythm to keep the bus free for): some goals find a poll in
+    // flight, some an idle bus.
+    let gaps = [
+        7_300u64, 11_100, 2_900, 15_700, 5_300, 9_900, 3_700, 13_300, 6_100,
+    ];
+    let mut behind_a_reply = 0;
+    for (k, gap) in gaps.iter().cycle().take(180).enumerate() {
+        rig.run(us(*gap));
+        let set_at = rig.t;
+        let reply_end = if rig.m.reply_pending() {
+            Some(
+                rig.reply
+                    .as_ref()
+                    .map(|(end, _)| *end)
+                    .expect("a reply on its way"),
+            )
+        } else {
+            None
+        };
+        let from = rig.log.len();
+        rig.set_goal(1 + (k % 4) as u8, Goal::Position(MmCenti(k as i16 * 7 + 1)));
+        rig.run(ms(4));
+        let frame_at = rig
+            .sent_since(from)
+            .iter()
+            .find(|s| s.tx.kind == TxKind::Command)
+            .expect("a frame")
+            .at;
+        // The frame is written the instant the reply in flight is complete, or at once.
+        match reply_end {
+            Some(end) => {
+                behind_a_reply += 1;
+                assert_eq!(
+                    frame_at,
+                    end,
+                    "goal {k}: written {:?} after the reply",
+                    frame_at - end
+                );
+            }
+            None => assert_eq!(frame_at, set_at, "goal {k} on an idle bus"),
+        }
+    }
+    assert!(
+        behind_a_reply >= 60,
+        "{behind_a_reply} of 180 goals behind a reply"
+    );
+}
+
+#[test]
 fn a_reply_is_awaited_from_its_earliest_end_and_counted_down_byte_by_byte() {
     let mut rig = Rig::online_with_force(&[1]);
     rig.settle();
