@@ -14,10 +14,16 @@
 //!   uses: time the line carries bytes, plus each servo's own turnaround between the end of a
 //!   request and the start of its reply (section 8 counts it in a poll's cost); the rest is time
 //!   the bus master left the line idle;
+//! - →goal idle %: idle line time that ended with a goal frame (at 50 Hz, the line kept free for
+//!   a goal that was expected); gap p50: the median idle gap after a reply's last byte, the
+//!   host's reaction (the bus thread waking on that byte, the simulator waking on the request);
 //! - latency: from `set_goal` to the first byte of the first long packet carrying that goal
 //!   (goals replaced before reaching the wire are counted as superseded, not timed). A goal that
 //!   arrives while a reply is awaited is "busy": its latency is compared with the time left
-//!   until that reply's last byte ("excess" = latency − that time). Otherwise it is "idle".
+//!   until that reply's last byte reached the host ("excess" = latency − that time): its modelled
+//!   wire instant, or later when the simulator's thread did not run in time (counted as
+//!   "sim late"; a servo or adapter that is slow to answer holds the bus as long). Otherwise it
+//!   is "idle".
 //!
 //! Goals come as an autopilot message would bring them: every servo's goal in one
 //! [`BusHandle::set_goals`] call.
@@ -65,6 +71,10 @@ struct Row {
     telemetry_hz_min: f64,
     wire_fraction: f64,
     utilisation: f64,
+    /// Idle line time that ended with a goal frame, as a fraction of the window.
+    before_goals_fraction: f64,
+    /// Idle gaps that began with the end of a reply (µs).
+    gaps_us: Vec<f64>,
     latencies_us: Vec<f64>,
     idle_us: Vec<f64>,
     /// Duration of the `set_goals` calls of idle goals (the write included).
@@ -77,6 +87,10 @@ struct Row {
     superseded: u64,
     timeouts: u64,
     collisions: u64,
+    /// Writes of the simulator toward the host later than its wire model by > 200 µs.
+    sim_late: u64,
+    /// Wake-ups of the bus thread > 0.5 ms after the instant it slept until.
+    late_wakeups: u64,
 }
 
 struct GoalRecord {
@@ -257,13 +271,36 @@ async fn run(s: Scenario) -> Result<Row, String> {
     let mut busy_wire_s = 0.0;
     let byte = Duration::from_secs_f64(byte_s);
     // Intervals the line is in use: host packets, replies, and each servo's turnaround.
-    let mut in_use: Vec<(Instant, Instant)> = Vec::new();
+    let mut in_use: Vec<(Instant, Instant, LineUse)> = Vec::new();
     let mut last_request_end: HashMap<u8, Instant> = HashMap::new();
     let mut telemetry_per_servo: HashMap<u8, u64> = HashMap::new();
     let mut longs: Vec<(Instant, Vec<(u8, i16)>)> = Vec::new();
     // (request first byte, id) and (id, reply last byte) for busy/idle classification.
     let mut requests: Vec<(Instant, u8)> = Vec::new();
     let mut replies: Vec<(Instant, u8, Instant)> = Vec::new();
+    // The simulator's late writes toward the host: (last byte due, handed over), by due instant.
+    let mut handed_late: Vec<(Instant, Instant)> = events
+        .iter()
+        .filter_map(|e| match e {
+            SimEvent::HandedLate { due, at, .. } => Some((*due, *at)),
+            _ => None,
+        })
+        .collect();
+    handed_late.sort();
+    row.sim_late = handed_late
+        .iter()
+        .filter(|(due, _)| in_window(*due))
+        .count() as u64;
+    // When a reply's last byte actually reached the host: later than on the modelled wire if the
+    // simulator's thread was late with any of its bytes.
+    let reply_reached_host = |first: Instant, last: Instant| {
+        let from = handed_late.partition_point(|(due, _)| *due < first);
+        handed_late[from..]
+            .iter()
+            .take_while(|(due, _)| *due <= last)
+            .map(|(_, at)| *at)
+            .fold(last, Instant::max)
+    };
     for e in &events {
         match e {
             SimEvent::Packet(p) => {
@@ -275,7 +312,11 @@ async fn run(s: Scenario) -> Result<Row, String> {
                     .completed_at
                     .checked_sub(byte * len)
                     .unwrap_or(p.completed_at);
-                in_use.push((start, p.completed_at));
+                let what = match p.packet {
+                    HostPacket::Long(_) => LineUse::Goals,
+                    HostPacket::Short(_) => LineUse::Other,
+                };
+                in_use.push((start, p.completed_at, what));
                 match &p.packet {
                     HostPacket::Long(_) => {
                         if in_window(p.first_byte_at) {
@@ -301,13 +342,17 @@ async fn run(s: Scenario) -> Result<Row, String> {
                 }
             }
             SimEvent::Reply(r) => {
-                replies.push((r.first_byte_at, r.id, r.last_byte_at));
+                replies.push((
+                    r.first_byte_at,
+                    r.id,
+                    reply_reached_host(r.first_byte_at, r.last_byte_at),
+                ));
                 let start = r.first_byte_at.checked_sub(byte).unwrap_or(r.first_byte_at);
-                in_use.push((start, r.last_byte_at));
+                in_use.push((start, r.last_byte_at, LineUse::Reply));
                 if let Some(request_end) = last_request_end.remove(&r.id)
                     && request_end <= start
                 {
-                    in_use.push((request_end, start));
+                    in_use.push((request_end, start, LineUse::Other));
                 }
                 if in_window(r.first_byte_at) {
                     busy_wire_s += r.bytes.len() as f64 * byte_s;
@@ -323,7 +368,14 @@ async fn run(s: Scenario) -> Result<Row, String> {
     row.polls_s /= secs;
     row.position_s /= secs;
     row.wire_fraction = busy_wire_s / secs;
-    row.utilisation = union_within(&mut in_use, t0, t1).as_secs_f64() / secs;
+    let line = line_within(&mut in_use, t0, t1);
+    row.utilisation = line.in_use.as_secs_f64() / secs;
+    row.before_goals_fraction = line.idle_before_goals.as_secs_f64() / secs;
+    row.gaps_us = line
+        .gaps_after_replies
+        .iter()
+        .map(|d| d.as_secs_f64() * 1e6)
+        .collect();
     row.telemetry_hz_min = ids
         .iter()
         .map(|n| telemetry_per_servo.get(n).copied().unwrap_or(0) as f64 / secs)
@@ -381,6 +433,9 @@ async fn run(s: Scenario) -> Result<Row, String> {
             Some((_, Some(end))) if end > g.at => {
                 let remaining = end.saturating_duration_since(g.at).as_secs_f64() * 1e6;
                 row.busy_excess_us.push(us - remaining);
+                if us - remaining > 500.0 && std::env::var_os("BUS_BENCH_TRACE").is_some() {
+                    trace_goal(&events, g.at, first, us - remaining);
+                }
             }
             Some((req_at, None)) if g.at < req_at + Duration::from_millis(20) => {
                 row.behind_timeout += 1;
@@ -394,23 +449,111 @@ async fn run(s: Scenario) -> Result<Row, String> {
     row.superseded = c1.goals_superseded - c0.goals_superseded;
     row.timeouts = c1.timeouts - c0.timeouts;
     row.collisions = stats1.collisions - stats0.collisions;
+    row.late_wakeups = c1.late_wakeups - c0.late_wakeups;
     Ok(row)
 }
 
-/// Total length of the union of `intervals`, clipped to `[t0, t1)`.
-fn union_within(intervals: &mut [(Instant, Instant)], t0: Instant, t1: Instant) -> Duration {
-    intervals.sort_by_key(|&(start, _)| start);
-    let mut total = Duration::ZERO;
+/// What a stretch of line time was used for.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum LineUse {
+    /// A long packet (goal frame).
+    Goals,
+    /// A reply.
+    Reply,
+    /// A request, or a servo's turnaround between a request and its reply.
+    Other,
+}
+
+/// Print the line around one slow goal (`BUS_BENCH_TRACE=1`).
+fn trace_goal(events: &[SimEvent], set_at: Instant, on_wire: Instant, excess_us: f64) {
+    let rel = |t: Instant| {
+        if t >= set_at {
+            (t - set_at).as_secs_f64() * 1e6
+        } else {
+            -(set_at - t).as_secs_f64() * 1e6
+        }
+    };
+    eprintln!(
+        "slow goal: excess {excess_us:.0} µs, on the wire after {:.0} µs",
+        rel(on_wire)
+    );
+    let from = set_at
+        .checked_sub(Duration::from_millis(4))
+        .unwrap_or(set_at);
+    for e in events {
+        let (at, what) = match e {
+            SimEvent::Packet(p) => (
+                p.first_byte_at,
+                format!(
+                    "host {:?} {} bytes, complete {:.0}{}",
+                    p.packet,
+                    p.bytes.len(),
+                    rel(p.completed_at),
+                    if p.collided { " COLLIDED" } else { "" }
+                ),
+            ),
+            SimEvent::Reply(r) => (
+                r.first_byte_at,
+                format!(
+                    "reply id {} {} bytes, last {:.0}",
+                    r.id,
+                    r.bytes.len(),
+                    rel(r.last_byte_at)
+                ),
+            ),
+            SimEvent::HandedLate { due, at, bytes } => (
+                *due,
+                format!("handed late: {bytes} bytes at {:.0}", rel(*at)),
+            ),
+            other => (set_at, format!("{other:?}")),
+        };
+        if at >= from && at <= on_wire + Duration::from_millis(1) {
+            eprintln!("  {:>8.0} {what}", rel(at));
+        }
+    }
+}
+
+/// The line in `[t0, t1)`: the time it was in use, and its idle gaps.
+struct LineTime {
+    in_use: Duration,
+    /// Idle time that ended with a goal frame.
+    idle_before_goals: Duration,
+    /// Each idle gap that began with the end of a reply: the host's reaction to it.
+    gaps_after_replies: Vec<Duration>,
+}
+
+fn line_within(
+    intervals: &mut [(Instant, Instant, LineUse)],
+    t0: Instant,
+    t1: Instant,
+) -> LineTime {
+    intervals.sort_by_key(|&(start, _, _)| start);
+    let mut line = LineTime {
+        in_use: Duration::ZERO,
+        idle_before_goals: Duration::ZERO,
+        gaps_after_replies: Vec::new(),
+    };
     let mut covered_to = t0;
-    for &(start, end) in intervals.iter() {
+    let mut covered_by = None;
+    for &(start, end, what) in intervals.iter() {
+        if start > covered_to && start < t1 && covered_to > t0 {
+            let gap = start - covered_to;
+            if what == LineUse::Goals {
+                line.idle_before_goals += gap;
+            }
+            if covered_by == Some(LineUse::Reply) {
+                line.gaps_after_replies.push(gap);
+            }
+        }
         let start = start.max(covered_to);
         let end = end.min(t1);
         if end > start {
-            total += end - start;
+            line.in_use += end - start;
             covered_to = end;
+            covered_by = Some(what);
         }
     }
-    total
+    line
 }
 
 /// Set a new goal for every servo each `period`, until `stop`; returns what was set and when.
@@ -505,13 +648,14 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
     );
     println!();
     let header = [
-        "frames/s", "polls/s", "pos/s", "telem Hz", "wire %", "limit %", "p50", "p99", "max",
-        "idle p50", "busy exc", "busy exc", "on wire", "t/o", "coll",
+        "frames/s", "polls/s", "pos/s", "telem Hz", "wire %", "limit %", "→goal", "gap", "p50",
+        "p99", "max", "idle p50", "busy exc", "busy exc", "on wire", "t/o", "coll", "sim", "bus",
     ];
     let header2 = [
-        "", "", "", "/servo", "", "", "", "", "", "", "p99", "max", "/set", "", "",
+        "", "", "", "/servo", "", "", "idle %", "p50", "", "", "", "", "p99", "max", "/set", "",
+        "", "late",
     ];
-    let widths = [8, 7, 6, 9, 6, 7, 7, 7, 7, 8, 8, 8, 11, 4, 4];
+    let widths = [8, 7, 6, 9, 6, 7, 6, 5, 7, 7, 7, 8, 8, 8, 11, 4, 4, 4, 4];
     let line = |label: &str, cells: &[String]| {
         let mut out = format!("{label:<27}");
         for (cell, w) in cells.iter().zip(widths) {
@@ -539,6 +683,8 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
                 format!("{:.1}", r.telemetry_hz_min),
                 format!("{:.1}%", r.wire_fraction * 100.0),
                 format!("{:.1}%", r.utilisation * 100.0),
+                format!("{:.1}%", r.before_goals_fraction * 100.0),
+                fmt_us(percentile(&sorted(&r.gaps_us), 50.0)),
                 fmt_us(percentile(&all, 50.0)),
                 fmt_us(percentile(&all, 99.0)),
                 fmt_us(all.last().copied()),
@@ -548,6 +694,8 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
                 format!("{}/{}", r.goals_on_wire, r.goals_set),
                 r.timeouts.to_string(),
                 r.collisions.to_string(),
+                r.sim_late.to_string(),
+                r.late_wakeups.to_string(),
             ],
         );
     }
@@ -559,7 +707,13 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
         "all bytes / elapsed. limit %: share of the section-8 wire-time limit used (bytes on the line"
     );
     println!(
-        "plus the servos' own reply turnaround; the rest is line left idle). idle p50: latency of goals"
+        "plus the servos' own reply turnaround; the rest is line left idle). →goal idle %: idle line"
+    );
+    println!(
+        "time that ended with a goal frame (50 Hz: kept free for an expected goal). gap p50: idle gap"
+    );
+    println!(
+        "after a reply's last byte (the bus thread and the simulator waking). idle p50: latency of goals"
     );
     println!(
         "set with no reply awaited. busy exc: latency − time left of the reply in flight, for goals set"
@@ -570,7 +724,16 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
     println!(
         "seen in a long packet / goals set (the rest were superseded by newer ones before a frame"
     );
-    println!("left). t/o: reply timeouts. coll: collisions on the line (simulator's count).");
+    println!(
+        "left). t/o: reply timeouts. coll: collisions on the line (simulator's count). sim late: the"
+    );
+    println!(
+        "simulator's thread handed bytes to the host > 200 µs after their wire instant (a reply's"
+    );
+    println!(
+        "time left then runs to its actual hand-over). bus late: the bus thread woke > 0.5 ms after"
+    );
+    println!("the instant it slept until (the machine did not run it in time).");
     println!();
     println!(
         "Targets (anchor: ArduPilot Volz at 115 200 bit/s, 4 servos: ~128 commands/s, ~10 Hz telemetry):"
@@ -623,6 +786,11 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
         fmt_latency(excess.last().copied()),
         over,
         excess.len()
+    );
+    println!(
+        "    in the same run the bus thread woke > 0.5 ms late {} times, the simulator handed bytes late {} times",
+        rows.iter().map(|r| r.late_wakeups).sum::<u64>(),
+        rows.iter().map(|r| r.sim_late).sum::<u64>(),
     );
     let worst_util = rows
         .iter()
