@@ -37,8 +37,8 @@ use lj9da_bridge::bus::{
 use lj9da_bridge::protocol::{BaudRate, MmCenti, ServoId};
 use lj9da_sim::{BusEvent as SimEvent, HostPacket, SimBus, SimConfig};
 use std::collections::HashMap;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 const WARM_UP: Duration = Duration::from_millis(1000);
@@ -91,6 +91,13 @@ struct Row {
     sim_late: u64,
     /// Wake-ups of the bus thread > 0.5 ms after the instant it slept until.
     late_wakeups: u64,
+    /// CPU time the hypervisor gave to others during the window (all CPUs), if known.
+    stolen_ms: Option<u64>,
+    /// Busy goals over the bound while the bus thread was woken late.
+    over_bus_late: u64,
+    /// Busy goals over the bound while the simulator handed bytes late (and the bus thread was
+    /// not late).
+    over_sim_late: u64,
 }
 
 struct GoalRecord {
@@ -101,7 +108,48 @@ struct GoalRecord {
     call: Duration,
 }
 
+/// The bus thread's late wake-ups (the instant it logged one, and how late it was), collected
+/// from its debug log by [`LateWakeupLog`].
+static LATE_WAKEUPS: Mutex<Vec<(Instant, Duration)>> = Mutex::new(Vec::new());
+
+/// A tracing layer that keeps the bus thread's "woke late" events in [`LATE_WAKEUPS`].
+struct LateWakeupLog;
+
+impl<S: tracing::Subscriber> tracing_subscriber::Layer<S> for LateWakeupLog {
+    fn enabled(
+        &self,
+        metadata: &tracing::Metadata<'_>,
+        _: tracing_subscriber::layer::Context<'_, S>,
+    ) -> bool {
+        metadata.target() == "lj9da_bridge::bus::driver"
+    }
+
+    fn on_event(&self, event: &tracing::Event<'_>, _: tracing_subscriber::layer::Context<'_, S>) {
+        struct LateUs(Option<u64>);
+        impl tracing::field::Visit for LateUs {
+            fn record_u64(&mut self, field: &tracing::field::Field, value: u64) {
+                if field.name() == "late_us" {
+                    self.0 = Some(value);
+                }
+            }
+            fn record_debug(&mut self, _: &tracing::field::Field, _: &dyn std::fmt::Debug) {}
+        }
+        let mut late = LateUs(None);
+        event.record(&mut late);
+        if let (Some(us), Ok(mut log)) = (late.0, LATE_WAKEUPS.lock()) {
+            log.push((Instant::now(), Duration::from_micros(us)));
+        }
+    }
+}
+
 fn main() {
+    {
+        use tracing_subscriber::layer::SubscriberExt;
+        let subscriber = tracing_subscriber::registry().with(LateWakeupLog);
+        if tracing::subscriber::set_global_default(subscriber).is_err() {
+            eprintln!("late wake-ups of the bus thread will not be attributed");
+        }
+    }
     let scenarios: Vec<Scenario> = [BaudRate::B115200, BaudRate::B460800]
         .into_iter()
         .flat_map(|baud| {
@@ -155,6 +203,20 @@ fn main() {
         }
     }
     print_table(&rows, &load_before, &load_average());
+}
+
+/// CPU time stolen by the hypervisor so far, all CPUs, in ms (`steal` of `/proc/stat`, in
+/// USER_HZ = 100 ticks a second): a virtual CPU that is not run stalls every thread on it.
+fn stolen_ms() -> Option<u64> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let ticks: u64 = stat
+        .lines()
+        .next()?
+        .split_whitespace()
+        .nth(8)?
+        .parse()
+        .ok()?;
+    Some(ticks * 10)
 }
 
 /// The 1-minute load average: the simulator runs in real time, so other work on the machine
@@ -245,10 +307,12 @@ async fn run(s: Scenario) -> Result<Row, String> {
     tokio::time::sleep(WARM_UP).await;
     let t0 = Instant::now();
     let c0 = bus.status().counters;
+    let steal0 = stolen_ms();
     let stats0 = sim.handle().stats();
     tokio::time::sleep(WINDOW).await;
     let t1 = Instant::now();
     let c1 = bus.status().counters;
+    let steal1 = stolen_ms();
     let stats1 = sim.handle().stats();
     stop.store(true, Ordering::SeqCst);
     let goals = producer
@@ -381,6 +445,11 @@ async fn run(s: Scenario) -> Result<Row, String> {
         .map(|n| telemetry_per_servo.get(n).copied().unwrap_or(0) as f64 / secs)
         .fold(f64::INFINITY, f64::min);
 
+    let late_wakeups: Vec<(Instant, Duration)> = LATE_WAKEUPS
+        .lock()
+        .map(|mut log| std::mem::take(&mut *log))
+        .unwrap_or_default();
+
     // Latency: each goal set in the window to the first long packet carrying it.
     let mut by_servo_value: HashMap<(u8, i16), Vec<usize>> = HashMap::new();
     for (i, g) in goals.iter().enumerate() {
@@ -433,8 +502,19 @@ async fn run(s: Scenario) -> Result<Row, String> {
             Some((_, Some(end))) if end > g.at => {
                 let remaining = end.saturating_duration_since(g.at).as_secs_f64() * 1e6;
                 row.busy_excess_us.push(us - remaining);
-                if us - remaining > 500.0 && std::env::var_os("BUS_BENCH_TRACE").is_some() {
-                    trace_goal(&events, g.at, first, us - remaining);
+                if us - remaining > 500.0 {
+                    let overlaps = |from: Instant, to: Instant| from < first && to > g.at;
+                    if late_wakeups
+                        .iter()
+                        .any(|&(at, late)| overlaps(at - late, at))
+                    {
+                        row.over_bus_late += 1;
+                    } else if handed_late.iter().any(|&(due, at)| overlaps(due, at)) {
+                        row.over_sim_late += 1;
+                    }
+                    if std::env::var_os("BUS_BENCH_TRACE").is_some() {
+                        trace_goal(&events, g.at, first, us - remaining);
+                    }
                 }
             }
             Some((req_at, None)) if g.at < req_at + Duration::from_millis(20) => {
@@ -450,6 +530,7 @@ async fn run(s: Scenario) -> Result<Row, String> {
     row.timeouts = c1.timeouts - c0.timeouts;
     row.collisions = stats1.collisions - stats0.collisions;
     row.late_wakeups = c1.late_wakeups - c0.late_wakeups;
+    row.stolen_ms = steal0.zip(steal1).map(|(a, b)| b.saturating_sub(a));
     Ok(row)
 }
 
@@ -650,12 +731,13 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
     let header = [
         "frames/s", "polls/s", "pos/s", "telem Hz", "wire %", "limit %", "→goal", "gap", "p50",
         "p99", "max", "idle p50", "busy exc", "busy exc", "on wire", "t/o", "coll", "sim", "bus",
+        "stolen",
     ];
     let header2 = [
         "", "", "", "/servo", "", "", "idle %", "p50", "", "", "", "", "p99", "max", "/set", "",
         "", "late",
     ];
-    let widths = [8, 7, 6, 9, 6, 7, 6, 5, 7, 7, 7, 8, 8, 8, 11, 4, 4, 4, 4];
+    let widths = [8, 7, 6, 9, 6, 7, 6, 5, 7, 7, 7, 8, 8, 8, 11, 4, 4, 4, 4, 6];
     let line = |label: &str, cells: &[String]| {
         let mut out = format!("{label:<27}");
         for (cell, w) in cells.iter().zip(widths) {
@@ -696,6 +778,7 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
                 r.collisions.to_string(),
                 r.sim_late.to_string(),
                 r.late_wakeups.to_string(),
+                r.stolen_ms.map_or("?".into(), |ms| ms.to_string()),
             ],
         );
     }
@@ -733,7 +816,10 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
     println!(
         "time left then runs to its actual hand-over). bus late: the bus thread woke > 0.5 ms after"
     );
-    println!("the instant it slept until (the machine did not run it in time).");
+    println!(
+        "the instant it slept until (the machine did not run it in time). stolen: CPU time the"
+    );
+    println!("hypervisor ran something else in the window (/proc/stat steal, 10 ms ticks).");
     println!();
     println!(
         "Targets (anchor: ArduPilot Volz at 115 200 bit/s, 4 servos: ~128 commands/s, ~10 Hz telemetry):"
@@ -787,8 +873,14 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
         over,
         excess.len()
     );
+    let by_bus: u64 = rows.iter().map(|r| r.over_bus_late).sum();
+    let by_sim: u64 = rows.iter().map(|r| r.over_sim_late).sum();
     println!(
-        "    in the same run the bus thread woke > 0.5 ms late {} times, the simulator handed bytes late {} times",
+        "    of them {by_bus} while the bus thread was woken > 0.5 ms late, {by_sim} while the simulator handed bytes late, {} with neither",
+        (over as u64).saturating_sub(by_bus + by_sim)
+    );
+    println!(
+        "    (in the whole run: {} late wake-ups of the bus thread, {} late hand-overs of the simulator)",
         rows.iter().map(|r| r.late_wakeups).sum::<u64>(),
         rows.iter().map(|r| r.sim_late).sum::<u64>(),
     );

@@ -128,6 +128,17 @@ impl Core {
         }
     }
 
+    /// The bus thread ran `late` after the instant it slept until: counted, and logged at debug
+    /// level (with the instant, for whoever lines it up with the traffic).
+    fn late_wakeup(&mut self, late: Duration) {
+        self.master.note_late_wakeup();
+        tracing::debug!(
+            bus = %self.master.config().name,
+            late_us = u64::try_from(late.as_micros()).unwrap_or(u64::MAX),
+            "bus thread woke late"
+        );
+    }
+
     /// Whether the bus thread must look again: the bus master's deadline moved (e.g. a request
     /// now awaits a reply) or the port failed.
     fn driver_must_wake(&self) -> bool {
@@ -172,8 +183,9 @@ impl Shared {
                 Err(poisoned) => poisoned.into_inner().0,
             };
         }
-        if slept && !core.woken && Instant::now().saturating_duration_since(until) > LATE_WAKEUP {
-            core.master.note_late_wakeup();
+        let late = Instant::now().saturating_duration_since(until);
+        if slept && !core.woken && late > LATE_WAKEUP {
+            core.late_wakeup(late);
         }
         core.woken = false;
         core
@@ -567,8 +579,8 @@ impl Driver {
                 } else {
                     bytes
                 };
-                if waiter.wait_for(bytes, deadline) == Waited::Late {
-                    self.shared.core().master.note_late_wakeup();
+                if let Waited::Late(late) = waiter.wait_for(bytes, deadline) {
+                    self.shared.core().late_wakeup(late);
                 }
                 continue;
             }
@@ -594,7 +606,8 @@ struct ReplyWaiter {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Waited {
     InTime,
-    Late,
+    /// Woken this long after the deadline.
+    Late(Duration),
 }
 
 impl ReplyWaiter {
@@ -624,8 +637,9 @@ impl ReplyWaiter {
         let mut fds = [PollFd::new(self.port.as_fd(), PollFlags::POLLIN)];
         // Readable, failed, hung up or timed out: the bus thread reads and looks again.
         let timed_out = ppoll(&mut fds, Some(TimeSpec::from_duration(left)), None) == Ok(0);
-        if timed_out && Instant::now().saturating_duration_since(until) > LATE_WAKEUP {
-            Waited::Late
+        let late = Instant::now().saturating_duration_since(until);
+        if timed_out && late > LATE_WAKEUP {
+            Waited::Late(late)
         } else {
             Waited::InTime
         }
