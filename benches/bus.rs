@@ -23,13 +23,16 @@
 //!   until that reply's last byte reached the host ("excess" = latency − that time): its modelled
 //!   wire instant, or later when the simulator's thread did not run in time (counted as
 //!   "sim late"; a servo or adapter that is slow to answer holds the bus as long). Otherwise it
-//!   is "idle".
+//!   is "idle". Each goal over the busy-bus bound is checked against the bus thread's late
+//!   wake-ups and the simulator's late hand-overs during its wait. Neither sees a pseudo-
+//!   terminal that is slow to pass bytes on (the kernel's tty work runs in a worker thread).
 //!
 //! Goals come as an autopilot message would bring them: every servo's goal in one
 //! [`BusHandle::set_goals`] call.
 //!
-//! Run: `cargo bench --bench bus` (about a minute); `BUS_BENCH_FILTER=460800` runs only the
-//! rows whose label contains the text.
+//! Run: `cargo bench --bench bus` (about a minute and a half); `BUS_BENCH_FILTER=460800` runs
+//! only the rows whose label contains the text; `BUS_BENCH_TRACE=1` prints the line around
+//! each goal over the busy-bus bound.
 
 use lj9da_bridge::bus::{
     BusConfig, BusHandle, ForceState, Goal, Health, ServoSetup, ShutdownForce, spawn_bus,
@@ -95,8 +98,8 @@ struct Row {
     stolen_ms: Option<u64>,
     /// Busy goals over the bound while the bus thread was woken late.
     over_bus_late: u64,
-    /// Busy goals over the bound while the simulator handed bytes late (and the bus thread was
-    /// not late).
+    /// Busy goals over the bound while the simulator was behind its model (and the bus thread
+    /// was not late).
     over_sim_late: u64,
 }
 
@@ -351,10 +354,15 @@ async fn run(s: Scenario) -> Result<Row, String> {
         })
         .collect();
     handed_late.sort();
-    row.sim_late = handed_late
+    // Every stretch the simulator was behind its model (late hand-overs).
+    let sim_behind: Vec<(Instant, Instant)> = events
         .iter()
-        .filter(|(due, _)| in_window(*due))
-        .count() as u64;
+        .filter_map(|e| match e {
+            SimEvent::HandedLate { due, at, .. } => Some((*due, *at)),
+            _ => None,
+        })
+        .collect();
+    row.sim_late = sim_behind.iter().filter(|(_, at)| in_window(*at)).count() as u64;
     // When a reply's last byte actually reached the host: later than on the modelled wire if the
     // simulator's thread was late with any of its bytes.
     let reply_reached_host = |first: Instant, last: Instant| {
@@ -450,6 +458,8 @@ async fn run(s: Scenario) -> Result<Row, String> {
         .map(|mut log| std::mem::take(&mut *log))
         .unwrap_or_default();
 
+    let mut traced_at = None;
+
     // Latency: each goal set in the window to the first long packet carrying it.
     let mut by_servo_value: HashMap<(u8, i16), Vec<usize>> = HashMap::new();
     for (i, g) in goals.iter().enumerate() {
@@ -509,11 +519,14 @@ async fn run(s: Scenario) -> Result<Row, String> {
                         .any(|&(at, late)| overlaps(at - late, at))
                     {
                         row.over_bus_late += 1;
-                    } else if handed_late.iter().any(|&(due, at)| overlaps(due, at)) {
+                    } else if sim_behind.iter().any(|&(from, to)| overlaps(from, to)) {
                         row.over_sim_late += 1;
                     }
-                    if std::env::var_os("BUS_BENCH_TRACE").is_some() {
-                        trace_goal(&events, g.at, first, us - remaining);
+                    // One trace per `set_goals` call (its goals share the instants).
+                    if std::env::var_os("BUS_BENCH_TRACE").is_some()
+                        && traced_at.replace(g.at) != Some(g.at)
+                    {
+                        trace_goal(&events, &late_wakeups, g.at, first, us - remaining);
                     }
                 }
             }
@@ -545,8 +558,15 @@ enum LineUse {
     Other,
 }
 
-/// Print the line around one slow goal (`BUS_BENCH_TRACE=1`).
-fn trace_goal(events: &[SimEvent], set_at: Instant, on_wire: Instant, excess_us: f64) {
+/// Print the line around one goal over the busy-bus bound (`BUS_BENCH_TRACE=1`): µs from
+/// the goal's `set_goals` call.
+fn trace_goal(
+    events: &[SimEvent],
+    late_wakeups: &[(Instant, Duration)],
+    set_at: Instant,
+    on_wire: Instant,
+    excess_us: f64,
+) {
     let rel = |t: Instant| {
         if t >= set_at {
             (t - set_at).as_secs_f64() * 1e6
@@ -561,13 +581,23 @@ fn trace_goal(events: &[SimEvent], set_at: Instant, on_wire: Instant, excess_us:
     let from = set_at
         .checked_sub(Duration::from_millis(4))
         .unwrap_or(set_at);
+    let shown = |at: Instant| at >= from && at <= on_wire + Duration::from_millis(1);
+    let mut lines: Vec<(f64, String)> = late_wakeups
+        .iter()
+        .filter(|(at, _)| shown(*at))
+        .map(|(at, late)| {
+            (
+                rel(*at),
+                format!("bus thread ran, {} µs late", late.as_micros()),
+            )
+        })
+        .collect();
     for e in events {
         let (at, what) = match e {
             SimEvent::Packet(p) => (
                 p.first_byte_at,
                 format!(
-                    "host {:?} {} bytes, complete {:.0}{}",
-                    p.packet,
+                    "host packet read by the simulator, {} bytes, complete {:.0}{}",
                     p.bytes.len(),
                     rel(p.completed_at),
                     if p.collided { " COLLIDED" } else { "" }
@@ -576,7 +606,7 @@ fn trace_goal(events: &[SimEvent], set_at: Instant, on_wire: Instant, excess_us:
             SimEvent::Reply(r) => (
                 r.first_byte_at,
                 format!(
-                    "reply id {} {} bytes, last {:.0}",
+                    "reply from servo {}, {} bytes, last byte {:.0}",
                     r.id,
                     r.bytes.len(),
                     rel(r.last_byte_at)
@@ -584,13 +614,21 @@ fn trace_goal(events: &[SimEvent], set_at: Instant, on_wire: Instant, excess_us:
             ),
             SimEvent::HandedLate { due, at, bytes } => (
                 *due,
-                format!("handed late: {bytes} bytes at {:.0}", rel(*at)),
+                format!(
+                    "simulator late: {bytes} bytes handed over at {:.0}",
+                    rel(*at)
+                ),
             ),
+            SimEvent::Collision { at, id } => (*at, format!("collision with servo {id}'s reply")),
             other => (set_at, format!("{other:?}")),
         };
-        if at >= from && at <= on_wire + Duration::from_millis(1) {
-            eprintln!("  {:>8.0} {what}", rel(at));
+        if shown(at) {
+            lines.push((rel(at), what));
         }
+    }
+    lines.sort_by(|a, b| a.0.total_cmp(&b.0));
+    for (t, l) in lines {
+        eprintln!("  {t:>8.0} {l}");
     }
 }
 
@@ -808,14 +846,13 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
         "seen in a long packet / goals set (the rest were superseded by newer ones before a frame"
     );
     println!(
-        "left). t/o: reply timeouts. coll: collisions on the line (simulator's count). sim late: the"
+        "left). t/o: reply timeouts. coll: collisions on the line (simulator's count). sim late: times the"
     );
     println!(
-        "simulator's thread handed bytes to the host > 200 µs after their wire instant (a reply's"
+        "simulator's thread handed bytes over > 200 µs after their wire instant (a reply's time left"
     );
-    println!(
-        "time left then runs to its actual hand-over). bus late: the bus thread woke > 0.5 ms after"
-    );
+    println!("then runs to its actual hand-over).");
+    println!("bus late: the bus thread woke > 0.5 ms after");
     println!(
         "the instant it slept until (the machine did not run it in time). stolen: CPU time the"
     );
@@ -876,11 +913,11 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
     let by_bus: u64 = rows.iter().map(|r| r.over_bus_late).sum();
     let by_sim: u64 = rows.iter().map(|r| r.over_sim_late).sum();
     println!(
-        "    of them {by_bus} while the bus thread was woken > 0.5 ms late, {by_sim} while the simulator handed bytes late, {} with neither",
+        "    of them {by_bus} while the bus thread was woken > 0.5 ms late, {by_sim} while the simulator was behind its model, {} with neither",
         (over as u64).saturating_sub(by_bus + by_sim)
     );
     println!(
-        "    (in the whole run: {} late wake-ups of the bus thread, {} late hand-overs of the simulator)",
+        "    (in the whole run: {} late wake-ups of the bus thread, {} times the simulator was behind its model)",
         rows.iter().map(|r| r.late_wakeups).sum::<u64>(),
         rows.iter().map(|r| r.sim_late).sum::<u64>(),
     );

@@ -54,6 +54,60 @@ const STATUS_REFRESH: Duration = Duration::from_millis(100);
 /// 115 200 bit/s.
 const TIMER_SLACK_NS: u64 = 1_000;
 
+/// The time slice the bus thread asks the scheduler for (the shortest Linux grants).
+const SCHED_SLICE: Duration = Duration::from_micros(100);
+
+/// Ask the scheduler to run this thread in short slices (Linux ≥ 6.12, EEVDF: `sched_setattr`
+/// with a `sched_runtime` for a normal thread; no privilege needed). A thread with a shorter
+/// slice than the one running may preempt it when it wakes, instead of waiting for that
+/// thread's slice (a few ms) to end: the bus thread wakes for a reply's last byte or a deadline
+/// and has tens of µs of work. Older kernels refuse it; nothing else changes.
+fn request_short_slice() -> std::io::Result<()> {
+    use nix::libc;
+    /// `struct sched_attr`, first version (`SCHED_ATTR_SIZE_VER1`).
+    #[repr(C)]
+    struct SchedAttr {
+        size: u32,
+        policy: u32,
+        flags: u64,
+        nice: i32,
+        priority: u32,
+        runtime: u64,
+        deadline: u64,
+        period: u64,
+        util_min: u32,
+        util_max: u32,
+    }
+    // Keep the thread's nice value: sched_setattr sets it too. getpriority returns -1 both for
+    // nice -1 and for an error, so errno tells them apart.
+    nix::errno::Errno::clear();
+    // SAFETY: getpriority only reads the calling thread's (PRIO_PROCESS, 0) nice value.
+    let nice = unsafe { libc::getpriority(libc::PRIO_PROCESS, 0) };
+    if nice == -1 && nix::errno::Errno::last_raw() != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    let attr = SchedAttr {
+        size: std::mem::size_of::<SchedAttr>() as u32,
+        policy: libc::SCHED_OTHER as u32,
+        flags: 0,
+        nice,
+        priority: 0,
+        runtime: SCHED_SLICE.as_nanos() as u64,
+        deadline: 0,
+        period: 0,
+        util_min: 0,
+        util_max: 0,
+    };
+    // SAFETY: `attr` is a valid, fully initialised sched_attr of the size it declares; pid 0 is
+    // the calling thread; the kernel only reads it.
+    let r = unsafe { libc::syscall(libc::SYS_sched_setattr, 0, &attr as *const SchedAttr, 0) };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
+}
+
 /// A wake-up this long after the instant slept until is counted as late
 /// ([`super::BusCounters::late_wakeups`]).
 const LATE_WAKEUP: Duration = Duration::from_micros(500);
@@ -389,6 +443,9 @@ impl Driver {
     fn run(mut self) {
         if let Err(e) = nix::sys::prctl::set_timerslack(TIMER_SLACK_NS) {
             tracing::debug!(bus = %self.name, "timer slack stays at its default: {e}");
+        }
+        if let Err(e) = request_short_slice() {
+            tracing::debug!(bus = %self.name, "scheduler slice stays at its default: {e}");
         }
         let (baud, reopen) = {
             let core = self.shared.core();
