@@ -382,8 +382,11 @@ fn run_bus(shared: Arc<Shared>, mut link: Link, wake_reader: UnixStream) {
             input = ppoll(&mut fds, Some(TimeSpec::from_duration(timeout)), None)
                 .is_ok_and(|ready| ready > 0);
         }
+        // Spin only inside the last SPIN_AHEAD: a ppoll that ended at the housekeeping period
+        // (a reply due after a long return delay) goes round the loop again.
         if let Some(at) = reply_ends
             && !input
+            && at.saturating_duration_since(Instant::now()) <= SPIN_AHEAD
         {
             while Instant::now() < at {
                 std::hint::spin_loop();
