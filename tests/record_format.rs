@@ -67,6 +67,16 @@ fn every_kind() -> Vec<Record> {
             telemetry: telemetry(i16::MAX, 0, i16::MIN, u16::MAX),
             flags: ReplyFlags(0),
         },
+        RecordBody::Position {
+            servo: 1,
+            position: MmCenti(-2500),
+            flags: ReplyFlags(0x20),
+        },
+        RecordBody::Position {
+            servo: 2,
+            position: MmCenti(i16::MAX),
+            flags: ReplyFlags(0),
+        },
     ];
     for (i, health) in [
         Health::Starting,
@@ -145,7 +155,7 @@ fn every_record_kind_round_trips_through_the_recorder_and_the_reader() {
     assert!(rec.closed);
     assert!(rec.notes.is_empty(), "{:?}", rec.notes);
     assert_eq!(rec.header.servos, servos());
-    assert_eq!(rec.header.version, (1, 0));
+    assert_eq!(rec.header.version, (1, 1));
     assert_eq!(rec.header.part, 0);
     assert!(rec.header.software.starts_with("lj9da-bridge "));
     let (last, data) = rec.records.split_last().unwrap();
@@ -317,7 +327,7 @@ fn only_an_unreadable_header_is_an_error() {
     bytes[8] = 2; // major version 2
     std::fs::write(&path, &bytes).unwrap();
     let e = read_record(&path).unwrap_err().to_string();
-    assert!(e.contains("record format 2.0"), "{e}");
+    assert!(e.contains("record format 2.1"), "{e}");
     assert!(e.contains("reads format 1.x"), "{e}");
 
     std::fs::write(&path, &bytes[..10]).unwrap();

@@ -473,3 +473,72 @@ fn the_record_subcommand_reads_plots_and_exports() {
         ExitCode::FAILURE
     );
 }
+
+#[test]
+fn position_records_count_in_the_error_and_the_exports_but_not_as_samples() {
+    let mut bytes = encode_header(&RecordHeader::new(
+        1_763_769_600_000_000_000,
+        vec![RecordServo::new("left", "wing", 1, 3)],
+    ));
+    let records = [
+        (
+            0.0,
+            RecordBody::Goal {
+                servo: 0,
+                goal: Goal::Position(MmCenti(1000)),
+            },
+        ),
+        (
+            1.0,
+            RecordBody::Telemetry {
+                servo: 0,
+                telemetry: Telemetry {
+                    present_position: MmCenti(990),
+                    present_time: Ms10(0),
+                    present_load: Ma10(30),
+                    present_temperature: Celsius(35),
+                    present_voltage: Mv10(1480),
+                },
+                flags: ReplyFlags(0),
+            },
+        ),
+        // A read of the position alone, 2 s after the goal: 3.00 mm short of it.
+        (
+            2.0,
+            RecordBody::Position {
+                servo: 0,
+                position: MmCenti(700),
+                flags: ReplyFlags(0),
+            },
+        ),
+        (3.0, RecordBody::End { continued: false }),
+    ];
+    for (t, body) in &records {
+        encode_record(
+            &Record {
+                t_us: us(*t),
+                body: body.clone(),
+            },
+            &mut bytes,
+        );
+    }
+    let rec = Recording::from_bytes(&bytes).unwrap();
+    assert!(rec.notes.is_empty(), "{:?}", rec.notes);
+    let s = &summary(&rec).servos[0];
+    assert_eq!(s.samples, 1, "a position read is not a telemetry sample");
+    assert!(close(s.max_error_mm.unwrap(), 3.0), "{:?}", s.max_error_mm);
+    assert!(close(s.max_error_at_s.unwrap(), 2.0));
+    assert!(close(s.max_settled_error_mm.unwrap(), 3.0));
+
+    let mut csv = Vec::new();
+    write_csv(&rec, &mut csv).unwrap();
+    let csv = String::from_utf8(csv).unwrap();
+    let row = csv
+        .lines()
+        .find(|l| l.split(',').nth(2) == Some("position"))
+        .unwrap();
+    assert!(
+        row.starts_with("2.000000,") && row.contains(",7.00,"),
+        "{row}"
+    );
+}

@@ -360,3 +360,101 @@ fn writer_throughput() {
         stats.bytes as f64 / stats.written as f64
     );
 }
+
+#[test]
+fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
+    use lj9da_bridge::bus::{BusCounters, BusStatus, ForceState, Health, ServoStatus};
+    use lj9da_bridge::protocol::ServoId;
+    use lj9da_bridge::record::StatusFeed;
+
+    let dir = TempDir::new("pos");
+    let handle = Recorder::start(dir.path(), &servos(), RecordLimits::default()).unwrap();
+    let mut feed = StatusFeed::new(handle.clone(), &servos());
+    let t0 = Instant::now();
+    let status = |telemetry: Telemetry, telemetry_at, position_at| BusStatus {
+        name: "wing".into(),
+        port_open: true,
+        servos: vec![ServoStatus {
+            id: ServoId::new(2).unwrap(),
+            name: "right".into(),
+            health: Health::Online,
+            telemetry: Some(telemetry),
+            telemetry_at: Some(telemetry_at),
+            position_at,
+            age: None,
+            flags: ReplyFlags(0x20),
+            goal: None,
+            force: ForceState::On,
+            stalled: false,
+            model: None,
+            firmware: None,
+            limits: None,
+            reversed: None,
+            return_delay: None,
+            temperature_limit: None,
+            consecutive_timeouts: 0,
+            telemetry_count: 1,
+            timeouts: 0,
+        }],
+        counters: BusCounters::default(),
+        at: t0 + Duration::from_millis(30),
+    };
+    let full = sample(100);
+    let mut moved = full;
+    moved.present_position = MmCenti(-1234);
+    let polled_at = t0 + Duration::from_millis(10);
+    let read_at = t0 + Duration::from_millis(20);
+    feed.observe(&status(full, polled_at, None));
+    // The position read replaces the position of the latest telemetry; the same status seen
+    // again (a refresh) records nothing more.
+    feed.observe(&status(moved, polled_at, Some(read_at)));
+    feed.observe(&status(moved, polled_at, Some(read_at)));
+    let path = handle.path().unwrap();
+    handle.finish();
+
+    let rec = read_record(&path).unwrap();
+    let bodies: Vec<&RecordBody> = rec
+        .records
+        .iter()
+        .map(|r| &r.body)
+        .filter(|b| {
+            matches!(
+                b,
+                RecordBody::Telemetry { .. } | RecordBody::Position { .. }
+            )
+        })
+        .collect();
+    assert_eq!(
+        bodies,
+        [
+            &RecordBody::Telemetry {
+                servo: 1,
+                telemetry: full,
+                flags: ReplyFlags(0x20),
+            },
+            &RecordBody::Position {
+                servo: 1,
+                position: MmCenti(-1234),
+                flags: ReplyFlags(0x20),
+            },
+        ]
+    );
+    let times: Vec<u64> = rec
+        .records
+        .iter()
+        .filter(|r| matches!(r.body, RecordBody::Position { .. }))
+        .map(|r| r.t_us)
+        .collect();
+    let telemetry_t = rec
+        .records
+        .iter()
+        .find(|r| matches!(r.body, RecordBody::Telemetry { .. }))
+        .map(|r| r.t_us)
+        .unwrap();
+    // Stamped with the instant the read's reply arrived: 10 ms after the full poll's.
+    assert_eq!(times.len(), 1);
+    assert!(
+        (times[0] - telemetry_t).abs_diff(10_000) <= 1,
+        "{times:?} vs {telemetry_t}"
+    );
+}

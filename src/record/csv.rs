@@ -55,6 +55,12 @@ pub fn csv_row(rec: &Recording, record: &Record) -> String {
             cols[6] = t.present_time.millis().to_string();
             cols[7] = flags.meaningful().to_string();
         }
+        RecordBody::Position {
+            position, flags, ..
+        } => {
+            cols[2] = format!("{:.2}", position.mm());
+            cols[7] = flags.meaningful().to_string();
+        }
         RecordBody::Health {
             health, stalled, ..
         } => {

@@ -32,6 +32,7 @@ use std::time::Instant;
 struct Seen {
     telemetry_at: Option<Instant>,
     telemetry_count: Option<u64>,
+    position_at: Option<Instant>,
     state: Option<(Health, bool)>,
 }
 
@@ -61,8 +62,8 @@ impl StatusFeed {
         self.servos.iter().position(|(b, i)| b == bus && *i == id)
     }
 
-    /// Record what is new in a status of the bus it names: telemetry samples not yet
-    /// recorded, and health or stall changes. Servos not in the table are ignored.
+    /// Record what is new in a status of the bus it names: telemetry samples and position
+    /// reads not yet recorded, and health or stall changes. Servos not in the table are ignored.
     pub fn observe(&mut self, status: &BusStatus) {
         for servo in &status.servos {
             let Some(index) = self.index_of(&status.name, servo.id.get()) else {
@@ -83,6 +84,13 @@ impl StatusFeed {
                 self.handle.telemetry(at, index, &telemetry, servo.flags);
                 seen.telemetry_at = Some(at);
                 seen.telemetry_count = Some(servo.telemetry_count);
+            }
+            if let (Some(telemetry), Some(at)) = (servo.telemetry, servo.position_at)
+                && seen.position_at != Some(at)
+            {
+                self.handle
+                    .position(at, index, telemetry.present_position, servo.flags);
+                seen.position_at = Some(at);
             }
             let state = (servo.health, servo.stalled);
             if seen.state != Some(state) {

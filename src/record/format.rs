@@ -49,9 +49,12 @@
 //! | 4 | event | `servo` `u8` (255: the bridge, not one servo) · `severity` `u8` (MAV_SEVERITY: 0 emergency … 7 debug) · `text`: the rest of the payload, UTF-8, at most 1000 bytes |
 //! | 5 | dropped | `count` `u64`: records the writer could not take since the previous `dropped` record (its queue was full, or the disk failed) |
 //! | 6 | end | `next` `u8`: 0 the run ended here cleanly, 1 the run continues in the next part |
+//! | 7 | position (1.1) | `servo` `u8` · `flags` `u8` (as in telemetry) · `present_position` `i16` 0.01 mm — 4 bytes |
 //!
 //! A goal is what the bridge handed to the bus (one record per change); a telemetry record is
-//! one reply of registers 42–59, stamped with the time it arrived; a health record is written
+//! one reply of registers 42–59, stamped with the time it arrived; a position record is one
+//! reply of registers 42–43 alone (the bus master reads the position by itself in bus time too
+//! short for a full poll); a health record is written
 //! when a servo's health or its stall state changes; an event is a STATUSTEXT or bus event.
 //!
 //! A telemetry record takes 22–24 bytes (24 from 4.5 min to 9.5 h into a run).
@@ -74,7 +77,7 @@ pub const MAGIC: [u8; 8] = *b"LJ9DAREC";
 /// The format's major version: a reader refuses any other.
 pub const VERSION_MAJOR: u16 = 1;
 /// The format's minor version (additions only).
-pub const VERSION_MINOR: u16 = 0;
+pub const VERSION_MINOR: u16 = 1;
 /// The extension of record files (rotation only ever deletes files with it).
 pub const FILE_EXTENSION: &str = "lj9rec";
 /// The largest `len` a record may have.
@@ -101,6 +104,10 @@ pub mod kind {
     pub const EVENT: u8 = 4;
     pub const DROPPED: u8 = 5;
     pub const END: u8 = 6;
+    /// Since format 1.1.
+    pub const POSITION: u8 = 7;
+    /// Every kind this version reads (they are numbered without gaps).
+    pub const KNOWN: std::ops::RangeInclusive<u8> = GOAL..=POSITION;
 }
 
 /// Payload bytes of each fixed-size kind (a longer payload is a later minor version's).
@@ -110,6 +117,7 @@ const HEALTH_LEN: usize = 3;
 const EVENT_MIN_LEN: usize = 2;
 const DROPPED_LEN: usize = 8;
 const END_LEN: usize = 1;
+const POSITION_LEN: usize = 4;
 
 /// One servo of the header's servo table.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -208,6 +216,12 @@ pub enum RecordBody {
         telemetry: Telemetry,
         flags: ReplyFlags,
     },
+    /// One reply of registers 42–43 alone (the present position) and its status flags.
+    Position {
+        servo: u8,
+        position: MmCenti,
+        flags: ReplyFlags,
+    },
     /// The servo's health or stall state changed.
     Health {
         servo: u8,
@@ -232,6 +246,7 @@ impl RecordBody {
         match self {
             RecordBody::Goal { servo, .. }
             | RecordBody::Telemetry { servo, .. }
+            | RecordBody::Position { servo, .. }
             | RecordBody::Health { servo, .. } => Some(*servo),
             RecordBody::Event { servo, .. } => *servo,
             RecordBody::Dropped { .. } | RecordBody::End { .. } => None,
@@ -243,6 +258,7 @@ impl RecordBody {
         match self {
             RecordBody::Goal { .. } => "goal",
             RecordBody::Telemetry { .. } => "telemetry",
+            RecordBody::Position { .. } => "position",
             RecordBody::Health { .. } => "health",
             RecordBody::Event { .. } => "event",
             RecordBody::Dropped { .. } => "dropped",
@@ -380,6 +396,7 @@ pub fn encode_record(record: &Record, out: &mut Vec<u8>) -> usize {
     let kind = match &record.body {
         RecordBody::Goal { .. } => kind::GOAL,
         RecordBody::Telemetry { .. } => kind::TELEMETRY,
+        RecordBody::Position { .. } => kind::POSITION,
         RecordBody::Health { .. } => kind::HEALTH,
         RecordBody::Event { .. } => kind::EVENT,
         RecordBody::Dropped { .. } => kind::DROPPED,
@@ -411,6 +428,15 @@ pub fn encode_record(record: &Record, out: &mut Vec<u8>) -> usize {
             out.extend_from_slice(&t.present_load.0.to_le_bytes());
             out.extend_from_slice(&t.present_temperature.0.to_le_bytes());
             out.extend_from_slice(&t.present_voltage.0.to_le_bytes());
+        }
+        RecordBody::Position {
+            servo,
+            position,
+            flags,
+        } => {
+            out.push(*servo);
+            out.push(flags.0);
+            out.extend_from_slice(&position.0.to_le_bytes());
         }
         RecordBody::Health {
             servo,
@@ -698,6 +724,7 @@ fn decode_body(kind: u8, payload: &[u8]) -> Body {
         kind::EVENT => ("event", EVENT_MIN_LEN),
         kind::DROPPED => ("dropped", DROPPED_LEN),
         kind::END => ("end", END_LEN),
+        kind::POSITION => ("position", POSITION_LEN),
         other => return Body::Unsupported(format!("records of kind {other}")),
     };
     let mut c = Cursor::new(payload);
@@ -730,6 +757,16 @@ fn decode_body(kind: u8, payload: &[u8]) -> Body {
             Some(Ok(RecordBody::Telemetry {
                 servo,
                 telemetry,
+                flags,
+            }))
+        })(),
+        kind::POSITION => (|| {
+            let servo = c.u8()?;
+            let flags = ReplyFlags(c.u8()?);
+            let position = MmCenti(c.i16()?);
+            Some(Ok(RecordBody::Position {
+                servo,
+                position,
                 flags,
             }))
         })(),
@@ -871,8 +908,8 @@ mod tests {
         ));
         bytes[8] = 2;
         let e = decode_header(&bytes).unwrap_err();
-        assert_eq!(e, HeaderError::UnsupportedVersion { major: 2, minor: 0 });
-        assert!(e.to_string().contains("format 2.0"));
+        assert_eq!(e, HeaderError::UnsupportedVersion { major: 2, minor: 1 });
+        assert!(e.to_string().contains("format 2.1"));
         bytes[8] = 1;
         bytes[20] ^= 1;
         assert!(matches!(

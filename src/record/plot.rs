@@ -207,6 +207,7 @@ fn panels(rec: &Recording, servo: usize, end_s: f64) -> Vec<Panel> {
                 temperature.push((t, f64::from(tm.present_temperature.0)));
                 voltage.push((t, tm.present_voltage.volts()));
             }
+            RecordBody::Position { position: p, .. } => position.push((t, p.mm())),
             RecordBody::Goal { goal: g, .. } => match g {
                 Goal::Position(p) => {
                     if let Some(previous) = goal {

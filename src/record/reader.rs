@@ -179,7 +179,7 @@ impl Recording {
 /// The first position at or after `from` where a whole record of a known kind with a correct
 /// CRC starts.
 fn resync(bytes: &[u8], from: usize) -> Option<usize> {
-    let known = format::kind::GOAL..=format::kind::END;
+    let known = format::kind::KNOWN;
     (from..bytes.len()).find(|&p| {
         let Some(&[l0, l1, kind]) = bytes.get(p..p + 3) else {
             return false;

@@ -6,8 +6,8 @@
 //!   over them (plain means over samples, not weighted by time);
 //! - **time stalled** / **time offline**: the total time between a health record that says
 //!   stalled (offline) and the next that does not, or the end of the recording;
-//! - **max error**: the largest |goal − present position| over the samples, each sample
-//!   paired with the goal in force at its time (the latest position goal; `hold` keeps it;
+//! - **max error**: the largest |goal − present position| over the samples and the position
+//!   records (reads of the position alone), each paired with the goal in force at its time (the latest position goal; `hold` keeps it;
 //!   `off` and `brake` end it, and samples without a goal in force are not paired). It
 //!   includes the travel right after each new goal; **settled error** is the same over the
 //!   samples taken at least [`SETTLE_S`] after the goal last changed;
@@ -214,6 +214,24 @@ pub fn summary(rec: &Recording) -> Summary {
     }
 }
 
+impl ServoSummary {
+    /// A present position seen at `t`, `since_goal` s after the goal in force (if any) changed.
+    fn note_error(&mut self, goal: Option<MmCenti>, since_goal: f64, position: MmCenti, t: f64) {
+        let Some(goal) = goal else {
+            return;
+        };
+        let error = (goal.mm() - position.mm()).abs();
+        if self.max_error_mm.is_none_or(|m| error > m) {
+            self.max_error_mm = Some(error);
+            self.max_error_at_s = Some(t);
+        }
+        if since_goal >= SETTLE_S {
+            let m = self.max_settled_error_mm.get_or_insert(error);
+            *m = m.max(error);
+        }
+    }
+}
+
 fn servo_summary(rec: &Recording, index: usize, servo: &RecordServo) -> ServoSummary {
     let mut s = ServoSummary {
         index,
@@ -268,17 +286,10 @@ fn servo_summary(rec: &Recording, index: usize, servo: &RecordServo) -> ServoSum
                 Accumulator::add(&mut temperature, f64::from(tm.present_temperature.0));
                 Accumulator::add(&mut current, tm.present_load.amps());
                 Accumulator::add(&mut voltage, tm.present_voltage.volts());
-                if let Some(g) = goal {
-                    let error = (g.mm() - tm.present_position.mm()).abs();
-                    if s.max_error_mm.is_none_or(|m| error > m) {
-                        s.max_error_mm = Some(error);
-                        s.max_error_at_s = Some(t);
-                    }
-                    if t - goal_since >= SETTLE_S {
-                        let m = s.max_settled_error_mm.get_or_insert(error);
-                        *m = m.max(error);
-                    }
-                }
+                s.note_error(goal, t - goal_since, tm.present_position, t);
+            }
+            RecordBody::Position { position, .. } => {
+                s.note_error(goal, t - goal_since, *position, t);
             }
             RecordBody::Event { .. } => s.events += 1,
             _ => {}

@@ -29,7 +29,7 @@ use super::format::{
 use super::rotate::{create_record_file, rotate, sync_dir};
 use crate::bus::{Goal, Health};
 use crate::mavlink::BridgeEvent;
-use crate::protocol::{ReplyFlags, Telemetry};
+use crate::protocol::{MmCenti, ReplyFlags, Telemetry};
 use std::fs::File;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
@@ -289,6 +289,20 @@ impl RecordHandle {
                 RecordBody::Telemetry {
                     servo,
                     telemetry: *telemetry,
+                    flags,
+                },
+            );
+        }
+    }
+
+    /// One reply of servo `servo`'s position alone (registers 42–43), received at `at`.
+    pub fn position(&self, at: Instant, servo: usize, position: MmCenti, flags: ReplyFlags) {
+        if let Some(servo) = self.servo_index(servo) {
+            self.record_at(
+                at,
+                RecordBody::Position {
+                    servo,
+                    position,
                     flags,
                 },
             );
