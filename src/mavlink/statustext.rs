@@ -1,6 +1,6 @@
 //! Events as STATUSTEXT: one message per event, with the severity the MAVLink conventions give
-//! it, and never a flood: a repeat of the same kind of event for the same servo within the
-//! hold-off is counted and folded into the next message instead of being sent.
+//! it, and never a flood: a repeat of the same kind of event for the same servo (or the same
+//! bus) within the hold-off is counted and folded into the next message instead of being sent.
 
 use super::health::{BridgeEvent, ServoEvent};
 use mavlink::dialects::common::MavSeverity;
@@ -82,11 +82,21 @@ fn truncate(mut text: String) -> String {
     text
 }
 
-/// The kind of an event, for the flood guard: an alarm going on and off again is one kind.
-fn kind(event: &BridgeEvent) -> (Option<usize>, u8) {
+/// What an event is about, for the flood guard: events about different servos or different
+/// buses never hold each other back.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+enum Subject {
+    Servo(usize),
+    Bus(String),
+    Bridge,
+}
+
+/// The kind of an event and what it is about, for the flood guard: an alarm going on and off
+/// again is one kind.
+fn kind(event: &BridgeEvent) -> (Subject, u8) {
     match event {
         BridgeEvent::Servo { servo, event } => (
-            Some(*servo),
+            Subject::Servo(*servo),
             match event {
                 ServoEvent::Lost | ServoEvent::Back => 0,
                 ServoEvent::TemperatureAlarm { .. } => 1,
@@ -96,20 +106,24 @@ fn kind(event: &BridgeEvent) -> (Option<usize>, u8) {
                 ServoEvent::FlashWriteError => 5,
             },
         ),
-        BridgeEvent::FailsafeEntered { .. } | BridgeEvent::FailsafeLeft => (None, 10),
-        BridgeEvent::PortLost { .. } | BridgeEvent::PortBack { .. } => (None, 11),
-        BridgeEvent::RepliesDegraded { .. } | BridgeEvent::RepliesOk { .. } => (None, 12),
+        BridgeEvent::FailsafeEntered { .. } | BridgeEvent::FailsafeLeft => (Subject::Bridge, 10),
+        BridgeEvent::PortLost { bus } | BridgeEvent::PortBack { bus } => {
+            (Subject::Bus(bus.clone()), 11)
+        }
+        BridgeEvent::RepliesDegraded { bus, .. } | BridgeEvent::RepliesOk { bus } => {
+            (Subject::Bus(bus.clone()), 12)
+        }
     }
 }
 
-/// The flood guard. Each kind of event (per servo) is sent at most once per hold-off. Events
+/// The flood guard. Each kind of event (per servo, per bus) is sent at most once per hold-off. Events
 /// that arrive inside the hold-off are counted; when it ends, the latest of them is sent (with
 /// the count) if it differs from the last one sent, so the operator always ends up seeing the
 /// current state: a servo that flaps lost/back/lost is reported lost, not back.
 #[derive(Debug)]
 pub struct Throttle {
     hold_off: Duration,
-    slots: HashMap<(Option<usize>, u8), Slot>,
+    slots: HashMap<(Subject, u8), Slot>,
 }
 
 #[derive(Debug)]
@@ -311,5 +325,24 @@ mod tests {
             event: ServoEvent::TemperatureError { celsius: Some(85) },
         };
         assert!(th.admit(&err, t0).is_some());
+    }
+
+    #[test]
+    fn each_bus_has_its_own_hold_off() {
+        let t0 = Instant::now();
+        let mut th = Throttle::new(Duration::from_secs(5));
+        let lost = |bus: &str| BridgeEvent::PortLost { bus: bus.into() };
+        // Three adapters unplugged at once: the operator reads each of them.
+        for bus in ["wing", "tail", "gear"] {
+            assert_eq!(th.admit(&lost(bus), t0), Some(0), "{bus}");
+        }
+        // The same bus again within the hold-off is held back.
+        assert_eq!(th.admit(&lost("wing"), t0 + Duration::from_secs(1)), None);
+        let degraded = |bus: &str| BridgeEvent::RepliesDegraded {
+            bus: bus.into(),
+            percent: 20,
+        };
+        assert_eq!(th.admit(&degraded("wing"), t0), Some(0));
+        assert_eq!(th.admit(&degraded("tail"), t0), Some(0));
     }
 }
