@@ -135,7 +135,7 @@ struct Core {
     port: Option<File>,
     /// Why the last write failed; the bus thread then treats the port as lost.
     write_error: Option<String>,
-    /// The bus master's deadline the bus thread is sleeping on.
+    /// The instant the bus thread sleeps until (its next look at the bus master).
     armed: Option<Instant>,
     /// The bus thread has something to look at (a goal, a shutdown).
     woken: bool,
@@ -193,10 +193,23 @@ impl Core {
         );
     }
 
-    /// Whether the bus thread must look again: the bus master's deadline moved (e.g. a request
-    /// now awaits a reply) or the port failed.
+    /// Whether the bus thread must look again after another thread wrote: the port failed, or
+    /// the bus master's deadline (or the look at a reply it now awaits) comes before the
+    /// instant the thread sleeps until. A later deadline needs no wake-up: the thread wakes at the old one, finds
+    /// nothing due and sleeps again. (On an idle bus, a goal's frame is written by the caller
+    /// and the thread is left asleep: waking it would take a CPU from the simulator, or the
+    /// kernel's tty worker, that should pass the frame on.)
     fn driver_must_wake(&self) -> bool {
-        self.write_error.is_some() || self.master.poll_timeout() != self.armed
+        let next = [self.master.poll_timeout(), self.master.reply_look_at()]
+            .into_iter()
+            .flatten()
+            .min();
+        self.write_error.is_some()
+            || match (next, self.armed) {
+                (Some(next), Some(armed)) => next < armed,
+                (Some(_), None) => true,
+                (None, _) => false,
+            }
     }
 }
 
@@ -588,7 +601,6 @@ impl Driver {
                 }
                 let done = core.master.is_shut_down();
                 let deadline = (!done).then(|| core.master.poll_timeout()).flatten();
-                core.armed = deadline;
                 let look_at = core.master.reply_look_at();
                 // The awaited reply should be (nearly) whole by now: wait on the port for its
                 // last bytes.
@@ -605,6 +617,7 @@ impl Driver {
                     .into_iter()
                     .flatten()
                     .fold(refresh, Instant::min);
+                core.armed = Some(wake_at);
                 (
                     wake_at,
                     reply_wait,
