@@ -17,7 +17,7 @@ async fn servos_reach_their_goals_and_telemetry_is_published() {
     let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
     let st = every_servo_online(&bus).await;
     for s in &st.servos {
-        assert_eq!(s.model, Some(0x7510));
+        assert_eq!(s.identity.model, Some(0x7510));
         assert_eq!(s.force, ForceState::Off, "no force before a goal");
     }
     let goals = [(1, 250), (2, -250), (3, 500), (4, -75)];

@@ -392,7 +392,7 @@ impl BusMaster {
         let return_delay = self
             .servos
             .iter()
-            .map(|s| s.return_delay.unwrap_or(self.cfg.assumed_return_delay))
+            .map(|s| s.return_delay(&self.cfg))
             .max()
             .unwrap_or_default();
         self.cfg.wire_time(8 + 26) + return_delay + Duration::from_micros(150)
@@ -436,7 +436,7 @@ impl BusMaster {
             Transaction::Verify => s.last_verify_at = Some(now),
             _ => {}
         }
-        let return_delay = s.return_delay.unwrap_or(self.cfg.assumed_return_delay);
+        let return_delay = s.return_delay(&self.cfg);
         let kind = match tx {
             Transaction::Identify | Transaction::ReadRam => TxKind::Init(id),
             Transaction::Probe => TxKind::Probe(id),

@@ -7,9 +7,9 @@
 use super::config::{BusConfig, ServoSetup};
 use super::event::BusEvent;
 use super::goal::Goal;
-use super::status::{ForceState, Health, ServoStatus};
+use super::status::{ForceState, Health, ServoIdentity, ServoStatus};
 use crate::protocol::{
-    Celsius, ForceMode, LJ9DA41_MODEL_NUMBER, MemoryMap, MmCenti, Ms10, PositionLimits, ReplyFlags,
+    ForceMode, LJ9DA41_MODEL_NUMBER, MemoryMap, MmCenti, Ms10, PositionLimits, ReplyFlags,
     ReplyRequest, ShortPacket, Telemetry, registers::addr,
 };
 use std::time::{Duration, Instant};
@@ -72,12 +72,7 @@ pub(super) struct Servo {
     pub timeouts: u64,
     pub telemetry_count: u64,
 
-    pub model: Option<u16>,
-    pub firmware: Option<u8>,
-    pub limits: Option<PositionLimits>,
-    pub reversed: Option<bool>,
-    pub return_delay: Option<Duration>,
-    pub temperature_limit: Option<Celsius>,
+    pub identity: ServoIdentity,
 
     pub telemetry: Option<Telemetry>,
     pub telemetry_at: Option<Instant>,
@@ -110,6 +105,13 @@ pub(super) struct Servo {
 }
 
 impl Servo {
+    /// The servo's return delay (register 7) once read; until then the configured assumption.
+    pub fn return_delay(&self, cfg: &BusConfig) -> Duration {
+        self.identity
+            .return_delay
+            .unwrap_or(cfg.assumed_return_delay)
+    }
+
     pub fn new(setup: ServoSetup) -> Self {
         Servo {
             setup,
@@ -117,12 +119,7 @@ impl Servo {
             consecutive_timeouts: 0,
             timeouts: 0,
             telemetry_count: 0,
-            model: None,
-            firmware: None,
-            limits: None,
-            reversed: None,
-            return_delay: None,
-            temperature_limit: None,
+            identity: ServoIdentity::default(),
             telemetry: None,
             telemetry_at: None,
             position_at: None,
@@ -150,7 +147,8 @@ impl Servo {
     /// `position` clamped into the servo's limits (the full stroke until they are read), as
     /// the servo itself would clamp it.
     pub fn clamp(&self, position: MmCenti) -> MmCenti {
-        self.limits
+        self.identity
+            .limits
             .unwrap_or(PositionLimits::FULL_STROKE)
             .clamp(position)
     }
@@ -303,12 +301,12 @@ impl Servo {
         let mut map = MemoryMap::default();
         map.store(0, data);
         let model = map.model_number();
-        self.model = Some(model);
-        self.firmware = Some(map.firmware_version());
-        self.reversed = Some(map.reversed());
-        self.return_delay = Some(Duration::from_millis(u64::from(map.return_delay_ms())));
-        self.temperature_limit = Some(map.temperature_limit());
-        self.limits = PositionLimits::new(map.minus_limit(), map.plus_limit()).ok();
+        self.identity.model = Some(model);
+        self.identity.firmware = Some(map.firmware_version());
+        self.identity.reversed = Some(map.reversed());
+        self.identity.return_delay = Some(Duration::from_millis(u64::from(map.return_delay_ms())));
+        self.identity.temperature_limit = Some(map.temperature_limit());
+        self.identity.limits = PositionLimits::new(map.minus_limit(), map.plus_limit()).ok();
         if probe {
             events.push(BusEvent::ServoBack { id });
         }
@@ -591,12 +589,7 @@ impl Servo {
             goal: self.sent.map(|s| s.position),
             force: self.force,
             stalled: self.stalled,
-            model: self.model,
-            firmware: self.firmware,
-            limits: self.limits,
-            reversed: self.reversed,
-            return_delay: self.return_delay,
-            temperature_limit: self.temperature_limit,
+            identity: self.identity,
             consecutive_timeouts: self.consecutive_timeouts,
             telemetry_count: self.telemetry_count,
             timeouts: self.timeouts,

@@ -45,6 +45,24 @@ pub enum ForceState {
     Brake,
 }
 
+/// What the bus master reads from a servo at start-up (and again when it comes back): each
+/// field `None` until read.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ServoIdentity {
+    /// Registers 0–1.
+    pub model: Option<u16>,
+    /// Register 2.
+    pub firmware: Option<u8>,
+    /// Registers 8–11 (when valid).
+    pub limits: Option<PositionLimits>,
+    /// Register 5.
+    pub reversed: Option<bool>,
+    /// Register 7.
+    pub return_delay: Option<Duration>,
+    /// Registers 14–15.
+    pub temperature_limit: Option<Celsius>,
+}
+
 /// One servo's state.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ServoStatus {
@@ -66,18 +84,8 @@ pub struct ServoStatus {
     pub goal: Option<MmCenti>,
     pub force: ForceState,
     pub stalled: bool,
-    /// Registers 0–1, once read.
-    pub model: Option<u16>,
-    /// Register 2, once read.
-    pub firmware: Option<u8>,
-    /// Registers 8–11, once read (and valid).
-    pub limits: Option<PositionLimits>,
-    /// Register 5, once read.
-    pub reversed: Option<bool>,
-    /// Register 7, once read.
-    pub return_delay: Option<Duration>,
-    /// Registers 14–15, once read.
-    pub temperature_limit: Option<Celsius>,
+    /// What start-up read from the servo.
+    pub identity: ServoIdentity,
     /// Replies missed in a row.
     pub consecutive_timeouts: u32,
     /// Telemetry polls answered.

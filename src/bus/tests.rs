@@ -433,12 +433,12 @@ fn startup_reads_identity_ram_and_telemetry_and_leaves_force_off() {
     let st = rig.m.status();
     let s2 = st.servo(id(2)).unwrap();
     assert_eq!(s2.health, Health::Online);
-    assert_eq!(s2.model, Some(0x7510));
-    assert_eq!(s2.firmware, Some(3));
-    assert_eq!(s2.reversed, Some(true));
-    assert_eq!(s2.return_delay, Some(ms(1)));
+    assert_eq!(s2.identity.model, Some(0x7510));
+    assert_eq!(s2.identity.firmware, Some(3));
+    assert_eq!(s2.identity.reversed, Some(true));
+    assert_eq!(s2.identity.return_delay, Some(ms(1)));
     assert_eq!(
-        s2.limits.map(|l| (l.minus(), l.plus())),
+        s2.identity.limits.map(|l| (l.minus(), l.plus())),
         Some((MmCenti(-1500), MmCenti(2000)))
     );
     assert_eq!(s2.force, ForceState::Off);
