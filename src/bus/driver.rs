@@ -139,6 +139,52 @@ struct Core {
     armed: Option<Instant>,
     /// The bus thread has something to look at (a goal, a shutdown).
     woken: bool,
+    late_wakeups: LateWakeups,
+}
+
+/// How often at most the operator is warned that the bus thread runs late.
+const LATE_WARNING_PERIOD: Duration = Duration::from_secs(60);
+
+/// Late wake-ups of the bus thread, for the operator: the first one is a warning at once, the
+/// ones after it are summed up in one warning at most every [`LATE_WARNING_PERIOD`].
+#[derive(Debug, Default)]
+struct LateWakeups {
+    warned_at: Option<Instant>,
+    /// Late wake-ups since the last warning, and the latest of them.
+    held: u32,
+    worst: Duration,
+}
+
+impl LateWakeups {
+    /// A wake-up `late` at `now`: the warning to give now, if any.
+    fn note(&mut self, now: Instant, late: Duration) -> Option<String> {
+        self.held += 1;
+        self.worst = self.worst.max(late);
+        if self
+            .warned_at
+            .is_some_and(|at| now.saturating_duration_since(at) < LATE_WARNING_PERIOD)
+        {
+            return None;
+        }
+        let warning = if self.warned_at.is_none() {
+            format!(
+                "bus thread woke {:.1} ms late: the computer did not run it in time, and a goal \
+                 may have waited as long (further late wake-ups are summed up once a minute)",
+                late.as_secs_f64() * 1e3
+            )
+        } else {
+            format!(
+                "bus thread woke late {} times since the last warning (worst {:.1} ms): the \
+                 computer is too busy to run it in time",
+                self.held,
+                self.worst.as_secs_f64() * 1e3
+            )
+        };
+        self.warned_at = Some(now);
+        self.held = 0;
+        self.worst = Duration::ZERO;
+        Some(warning)
+    }
 }
 
 impl Core {
@@ -182,21 +228,26 @@ impl Core {
         }
     }
 
-    /// The bus thread ran `late` after the instant it slept until: counted, and logged at debug
-    /// level (with the instant, for whoever lines it up with the traffic).
+    /// The bus thread ran `late` after the instant it slept until: counted, logged at debug
+    /// level (with the instant, for whoever lines it up with the traffic), and told to the
+    /// operator as a warning at most once per [`LATE_WARNING_PERIOD`].
     fn late_wakeup(&mut self, late: Duration) {
         self.master.note_late_wakeup();
+        let bus = &self.master.config().name;
         tracing::debug!(
-            bus = %self.master.config().name,
+            bus = %bus,
             late_us = u64::try_from(late.as_micros()).unwrap_or(u64::MAX),
             "bus thread woke late"
         );
+        if let Some(warning) = self.late_wakeups.note(Instant::now(), late) {
+            tracing::warn!(bus = %bus, "{warning}");
+        }
     }
 
     /// Whether the bus thread must look again after another thread wrote: the port failed, or
     /// the bus master's deadline (or the look at a reply it now awaits) comes before the
-    /// instant the thread sleeps until. A later deadline needs no wake-up: the thread wakes at the old one, finds
-    /// nothing due and sleeps again. (On an idle bus, a goal's frame is written by the caller
+    /// instant the thread sleeps until. A later deadline needs no wake-up: the thread wakes at
+    /// the old one, finds nothing due and sleeps again. (On an idle bus, a goal's frame is written by the caller
     /// and the thread is left asleep: waking it would take a CPU from the simulator, or the
     /// kernel's tty worker, that should pass the frame on.)
     fn driver_must_wake(&self) -> bool {
@@ -386,6 +437,7 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
             write_error: None,
             armed: None,
             woken: false,
+            late_wakeups: LateWakeups::default(),
         }),
         wake: Condvar::new(),
     });
@@ -740,5 +792,31 @@ impl Drop for ReplyWaiter {
         if self.vmin > 1 {
             self.set_threshold(1);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn late_wake_ups_are_told_at_once_then_summed_up_once_a_minute() {
+        let t0 = Instant::now();
+        let ms = Duration::from_millis;
+        let mut late = LateWakeups::default();
+        let first = late.note(t0, ms(2)).expect("the first is told at once");
+        assert!(first.contains("2.0 ms late"), "{first}");
+        // Within the minute: held back.
+        assert_eq!(late.note(t0 + ms(10), ms(3)), None);
+        assert_eq!(late.note(t0 + Duration::from_secs(30), ms(1)), None);
+        // The next one after the minute tells all three, with the worst.
+        let summary = late
+            .note(t0 + Duration::from_secs(61), ms(1))
+            .expect("a summary after the minute");
+        assert!(
+            summary.contains("3 times") && summary.contains("worst 3.0 ms"),
+            "{summary}"
+        );
+        assert_eq!(late.note(t0 + Duration::from_secs(62), ms(1)), None);
     }
 }
