@@ -247,9 +247,9 @@ impl Core {
     /// Whether the bus thread must look again after another thread wrote: the port failed, or
     /// the bus master's deadline (or the look at a reply it now awaits) comes before the
     /// instant the thread sleeps until. A later deadline needs no wake-up: the thread wakes at
-    /// the old one, finds nothing due and sleeps again. (On an idle bus, a goal's frame is written by the caller
-    /// and the thread is left asleep: waking it would take a CPU from the simulator, or the
-    /// kernel's tty worker, that should pass the frame on.)
+    /// the old one, finds nothing due and sleeps again. (On an idle bus, a goal's frame is
+    /// written by the caller and the thread is left asleep: waking it would take a CPU from the
+    /// simulator, or the kernel's tty worker, that should pass the frame on.)
     fn driver_must_wake(&self) -> bool {
         let next = [self.master.poll_timeout(), self.master.reply_look_at()]
             .into_iter()
@@ -278,9 +278,10 @@ impl Shared {
             .unwrap_or_else(|poisoned| poisoned.into_inner())
     }
 
-    /// Wake the bus thread (the caller has let go of the core).
-    fn wake(&self) {
-        self.core().woken = true;
+    /// Wake the bus thread, letting go of the core it is handed.
+    fn wake(&self, mut core: MutexGuard<'_, Core>) {
+        core.woken = true;
+        drop(core);
         self.wake.notify_one();
     }
 
@@ -320,9 +321,7 @@ impl Drop for Owners {
         let mut core = self.shared.core();
         core.master.shutdown(ShutdownForce::AsIs);
         core.flush();
-        core.woken = true;
-        drop(core);
-        self.shared.wake.notify_one();
+        self.shared.wake(core);
     }
 }
 
@@ -358,8 +357,9 @@ impl BusHandle {
     /// faster.
     pub fn set_goal(&self, id: ServoId, goal: Goal) {
         let shared = &self.owners.shared;
-        shared.core().master.set_goal(id, goal, Instant::now());
-        shared.wake();
+        let mut core = shared.core();
+        core.master.set_goal(id, goal, Instant::now());
+        shared.wake(core);
     }
 
     /// The newest goals of several servos at once (e.g. every channel of one autopilot
@@ -375,9 +375,7 @@ impl BusHandle {
         core.flush();
         // The write is done; the bus thread is woken only when it must re-arm.
         if core.driver_must_wake() {
-            core.woken = true;
-            drop(core);
-            shared.wake.notify_one();
+            shared.wake(core);
         }
     }
 
@@ -401,11 +399,12 @@ impl BusHandle {
     pub async fn shutdown(&self, leave: ShutdownForce) {
         let shared = &self.owners.shared;
         {
+            // In a block: the guard is not held across the await below.
             let mut core = shared.core();
             core.master.shutdown(leave);
             core.flush();
+            shared.wake(core);
         }
-        shared.wake();
         let mut finished = self.finished.clone();
         let _ = finished.wait_for(|done| *done).await;
     }

@@ -453,14 +453,15 @@ impl BusMaster {
         let expected = packet.expected_reply();
         let transmit = self.emit(packet.to_bytes(), kind, now);
         if expected.wire_len() > 0 {
-            let reply_wire = self.cfg.wire_time(expected.wire_len());
+            let complete_at =
+                self.wire_free_at + return_delay + self.cfg.wire_time(expected.wire_len());
             self.pending = Some(Pending {
                 index: i,
                 tx,
                 expected,
-                complete_at: self.wire_free_at + return_delay + reply_wire,
+                complete_at,
                 looked: false,
-                deadline: self.wire_free_at + reply_wire + return_delay + self.cfg.turnaround,
+                deadline: complete_at + self.cfg.turnaround,
             });
         }
         Transmit {

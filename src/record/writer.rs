@@ -2,8 +2,8 @@
 //!
 //! [`RecordHandle`]'s methods stamp a record with the time and push it into a bounded queue;
 //! they never wait, never touch the disk, never wake another thread and never fail. A
-//! dedicated thread takes the queued records every 50 ms, encodes them into a buffer, writes the buffer out when it holds 64 KiB
-//! and, at least every [`RecorderOptions::sync_interval`] (0.5 s by default) while there is
+//! dedicated thread takes the queued records every 50 ms, encodes them into a buffer, writes
+//! the buffer out when it holds 64 KiB and, at least every [`RecorderOptions::sync_interval`] (0.5 s by default) while there is
 //! something to write, writes it out and asks the disk to keep it (`File::sync_data`). So a
 //! crash or power cut loses at most the last ~0.5 s of records (plus what the disk takes to
 //! sync), and a file cut in the middle of a write reads back up to its last whole record.
