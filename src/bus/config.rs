@@ -77,8 +77,11 @@ pub struct BusConfig {
     pub servos: Vec<ServoSetup>,
     /// Allowance for the servo's and the adapter's latency, added to every reply timeout.
     pub turnaround: Duration,
-    /// Consecutive reply timeouts after which a servo is offline.
+    /// Consecutive silent reply timeouts after which a servo is offline ...
     pub offline_after_timeouts: u32,
+    /// ... once it has also been silent this long. A servo whose replies arrive garbled (bad
+    /// sums) is answering: it is counted among the bad replies, never taken for lost.
+    pub offline_after_silence: Duration,
     /// Telemetry older than this makes an online servo stale.
     pub stale_after: Duration,
     /// Speed of the first move after force ON (soft start), in mm/s. Zero, negative or not a
@@ -100,11 +103,21 @@ pub struct BusConfig {
     /// How often each servo's force state and goal register (registers 30–41) are read back,
     /// to notice a servo that restarted without missing enough replies to go offline.
     pub verify_interval: Duration,
+    /// How often each servo's temperature and voltage are read (the full registers 42–59);
+    /// the polls between read position and current alone (registers 42–49), which hold the
+    /// bus for less time.
+    pub full_telemetry_interval: Duration,
+    /// After a goal, no poll starts for this long: the other messages of the same autopilot
+    /// tick (SERVO_OUTPUT_RAW port 1, ACTUATOR_OUTPUT_STATUS, a command) find the bus free.
+    pub tick_gather: Duration,
 }
 
 impl BusConfig {
     pub const DEFAULT_TURNAROUND: Duration = Duration::from_millis(2);
     pub const DEFAULT_OFFLINE_AFTER_TIMEOUTS: u32 = 3;
+    pub const DEFAULT_OFFLINE_AFTER_SILENCE: Duration = Duration::from_millis(300);
+    pub const DEFAULT_FULL_TELEMETRY_INTERVAL: Duration = Duration::from_millis(50);
+    pub const DEFAULT_TICK_GATHER: Duration = Duration::from_millis(2);
     pub const DEFAULT_STALE_AFTER: Duration = Duration::from_millis(500);
     pub const DEFAULT_SOFT_START_SPEED_MM_S: f64 = 10.0;
 
@@ -116,6 +129,7 @@ impl BusConfig {
             servos,
             turnaround: Self::DEFAULT_TURNAROUND,
             offline_after_timeouts: Self::DEFAULT_OFFLINE_AFTER_TIMEOUTS,
+            offline_after_silence: Self::DEFAULT_OFFLINE_AFTER_SILENCE,
             stale_after: Self::DEFAULT_STALE_AFTER,
             soft_start_speed_mm_s: Self::DEFAULT_SOFT_START_SPEED_MM_S,
             stall: StallConfig::default(),
@@ -134,6 +148,8 @@ impl BusConfig {
             assumed_return_delay: Duration::from_millis(5),
             telemetry_min_interval: Duration::ZERO,
             verify_interval: Duration::from_secs(1),
+            full_telemetry_interval: Self::DEFAULT_FULL_TELEMETRY_INTERVAL,
+            tick_gather: Self::DEFAULT_TICK_GATHER,
         }
     }
 

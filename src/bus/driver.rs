@@ -196,6 +196,8 @@ impl Core {
             return;
         };
         while let Some(tx) = self.master.poll_transmit(Instant::now()) {
+            // The bytes cannot start on the wire before the write does.
+            self.master.handle_written(Instant::now());
             if let Err(e) = port.write_all(&tx.bytes) {
                 self.write_error = Some(format!("write failed: {e}"));
                 self.port = None;

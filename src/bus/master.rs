@@ -39,6 +39,9 @@ use std::time::{Duration, Instant};
 
 /// Events kept at most when nobody takes them; the oldest are dropped beyond it.
 const MAX_QUEUED_EVENTS: usize = 1024;
+/// Allowed besides wire time and return delay for the servo and the adapter to react, when
+/// judging whether a request ends before the next goal.
+const REACTION: Duration = Duration::from_micros(150);
 
 /// A request on the wire whose reply is awaited.
 #[derive(Debug, Clone, Copy)]
@@ -53,6 +56,8 @@ struct Pending {
     /// A look before the deadline found the reply incomplete: the driver then waited for its
     /// last bytes, so the read that completes it happens when it completed.
     looked: bool,
+    /// A return packet with a bad sum arrived meanwhile: the servo answered, garbled.
+    garbled: bool,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -75,6 +80,9 @@ pub struct BusMaster {
     reply_lateness: Duration,
     /// When the bytes already handed out will have left the wire.
     wire_free_at: Instant,
+    /// When the packet handed out last was to start on the wire (see
+    /// [`BusMaster::handle_written`]).
+    last_start: Option<Instant>,
     /// The servo that had the last round-robin turn.
     cursor: usize,
     events: VecDeque<BusEvent>,
@@ -102,6 +110,7 @@ impl BusMaster {
             }
         }
         let cursor = servos.len().saturating_sub(1);
+        let rhythm = GoalRhythm::new(cfg.tick_gather);
         BusMaster {
             cfg,
             servos,
@@ -109,12 +118,13 @@ impl BusMaster {
             pending: None,
             reply_lateness: Duration::ZERO,
             wire_free_at: now,
+            last_start: None,
             cursor,
             events: VecDeque::new(),
             counters: BusCounters::default(),
             now,
             port_open: true,
-            rhythm: GoalRhythm::default(),
+            rhythm,
             resend_all: false,
             shutdown: None,
             changed: true,
@@ -157,6 +167,9 @@ impl BusMaster {
         let s = &mut self.servos[i];
         let waiting = s.unsent_position();
         s.desired = Some(goal);
+        if matches!(goal, Goal::Position(_)) {
+            s.goal_at = Some(now);
+        }
         match (waiting, s.unsent_position()) {
             (Some(old), Some(new)) if old == new => self.counters.goals_unchanged += 1,
             (Some(_), _) => {
@@ -184,7 +197,12 @@ impl BusMaster {
                 Ok(Decoded::Reply(reply)) => self.on_reply(reply, now),
                 Ok(Decoded::Echo { .. }) => self.counters.echoes += 1,
                 Ok(Decoded::Ack) => self.counters.unexpected_replies += 1,
-                Err(DecodeError::BadChecksum { .. }) => self.counters.bad_sums += 1,
+                Err(DecodeError::BadChecksum { .. }) => {
+                    self.counters.bad_sums += 1;
+                    if let Some(p) = self.pending.as_mut() {
+                        p.garbled = true;
+                    }
+                }
                 Err(DecodeError::Garbage { skipped, .. }) => {
                     self.counters.garbage_bytes += skipped as u64
                 }
@@ -220,7 +238,7 @@ impl BusMaster {
         let mut events = Vec::new();
         let cfg = &self.cfg;
         let s = &mut self.servos[p.index];
-        s.consecutive_timeouts = 0;
+        s.heard();
         s.apply_flags(reply.flags, &mut events);
         match p.tx {
             Transaction::Identify | Transaction::Probe => {
@@ -243,6 +261,7 @@ impl BusMaster {
                     s.on_force(mode, &reply.data, now, cfg, &mut events);
                 }
             }
+            Transaction::Motion => s.store_motion(&reply.data, now),
             Transaction::Position => {
                 if let [lo, hi] = reply.data[..] {
                     s.store_position(crate::protocol::MmCenti(i16::from_le_bytes([lo, hi])), now);
@@ -273,6 +292,25 @@ impl BusMaster {
         }
     }
 
+    /// The packet [`BusMaster::poll_transmit`] handed out last was written to the port at `at`.
+    /// A write later than the instant the packet was to start on the wire (the writing thread
+    /// was preempted in between) delays it and everything behind it: the reply awaited is
+    /// expected that much later, so its bytes are never taken for missing and nothing is
+    /// written into them.
+    pub fn handle_written(&mut self, at: Instant) {
+        let Some(planned) = self.last_start.take() else {
+            return;
+        };
+        let Some(shift) = at.checked_duration_since(planned).filter(|d| !d.is_zero()) else {
+            return;
+        };
+        self.wire_free_at += shift;
+        if let Some(p) = self.pending.as_mut() {
+            p.complete_at += shift;
+            p.deadline += shift;
+        }
+    }
+
     /// Time has passed: a reply that is overdue has timed out.
     pub fn handle_timeout(&mut self, now: Instant) {
         self.touch(now);
@@ -298,7 +336,7 @@ impl BusMaster {
         self.counters.timeouts += 1;
         let mut events = Vec::new();
         if let Some(s) = self.servos.get_mut(p.index) {
-            s.on_timeout(now, &self.cfg, &mut events);
+            s.on_timeout(p.garbled, now, &self.cfg, &mut events);
         }
         self.push_events(events);
     }
@@ -360,65 +398,105 @@ impl BusMaster {
             }
             return self.long_packet(now);
         }
-        if self.rhythm.hold_until(now, self.poll_busy()).is_some() {
-            return self
-                .position_read_fitting(now)
-                .map(|i| self.start(i, Transaction::Position, now));
+        let (i, tx) = self.next_request(now)?;
+        if !matches!(tx, Transaction::Force(_) | Transaction::Position) {
+            self.cursor = i;
         }
-        let due = |at: Option<Instant>| at.is_none_or(|t| t <= now);
+        Some(self.start(i, tx, now))
+    }
+
+    /// The request [`BusMaster::poll_transmit`] would start at `at` (no long packet due, no
+    /// reply pending), if any. A request starts only when it ends before the next goal is
+    /// expected ([`GoalRhythm::hold_until`]) and not within [`BusConfig::tick_gather`] of the
+    /// latest goal. In order: a force write that is due; the next servo's read in round-robin
+    /// (a full telemetry poll that does not fit becomes a read of position and current);
+    /// while a goal is expected soon, a position-only read that still fits, for the servo
+    /// whose position was read longest ago.
+    fn next_request(&self, at: Instant) -> Option<(usize, Transaction)> {
+        if self.gathering_until(at).is_some_and(|until| at < until) {
+            return None;
+        }
+        let due = |when: Option<Instant>| when.is_none_or(|t| t <= at);
         if let Some((i, mode)) = self.servos.iter().enumerate().find_map(|(i, s)| {
             s.force_due()
-                .filter(|(at, _)| due(*at))
+                .filter(|(when, _)| due(*when))
                 .map(|(_, m)| (i, m))
-        }) {
-            return Some(self.start(i, Transaction::Force(mode), now));
+        }) && self.fits(i, Transaction::Force(mode), at)
+        {
+            return Some((i, Transaction::Force(mode)));
         }
         let n = self.servos.len();
         for k in 1..=n {
             let i = (self.cursor + k) % n;
-            if let Some((at, tx)) = self.servos[i].poll_due(&self.cfg)
-                && due(at)
+            let Some((when, tx)) = self.servos[i].poll_due(&self.cfg) else {
+                continue;
+            };
+            if !due(when) {
+                continue;
+            }
+            if self.fits(i, tx, at) {
+                return Some((i, tx));
+            }
+            if tx == Transaction::Telemetry
+                && self.servos[i].phase == Phase::Ready
+                && self.fits(i, Transaction::Motion, at)
             {
-                self.cursor = i;
-                return Some(self.start(i, tx, now));
+                return Some((i, Transaction::Motion));
             }
         }
-        None
+        self.position_read_fitting(at)
+            .map(|i| (i, Transaction::Position))
     }
 
-    /// How long a telemetry poll holds the bus: request and reply on the wire, the longest
-    /// return delay of the bus, and a little for the servo and the adapter.
-    fn poll_busy(&self) -> Duration {
-        let return_delay = self
+    /// Until when, seen at `at`, no request may start because the autopilot's tick is still
+    /// coming in: [`BusConfig::tick_gather`] after the latest goal; and, while the rhythm is
+    /// known, until half a period after the tick began as long as a servo that had a goal in
+    /// the tick before has none in this one yet (a message of the tick is late). `None`: no
+    /// goal yet.
+    fn gathering_until(&self, at: Instant) -> Option<Instant> {
+        let gather = self.rhythm.latest_goal()? + self.cfg.tick_gather;
+        let incomplete = self.rhythm.tick(at).and_then(|(start, period)| {
+            let until = start + period / 2;
+            let awaited = self.servos.iter().any(|s| {
+                s.goal_at
+                    .is_some_and(|g| g < start && start - g < period + period / 2)
+            });
+            (awaited && at < until).then_some(until)
+        });
+        Some(incomplete.map_or(gather, |until| until.max(gather)))
+    }
+
+    /// How long transaction `tx` with servo `i` holds the bus: request and reply on the wire,
+    /// the servo's return delay, and a little for the servo and the adapter to react.
+    fn busy_of(&self, i: usize, tx: Transaction) -> Duration {
+        let s = &self.servos[i];
+        let packet = s.request(tx);
+        let bytes = packet.wire_len() + packet.expected_reply().wire_len();
+        self.cfg.wire_time(bytes) + s.return_delay(&self.cfg) + REACTION
+    }
+
+    /// Whether transaction `tx` with servo `i`, started at `at` (behind whatever is still on
+    /// the wire), ends before the next goal is expected.
+    fn fits(&self, i: usize, tx: Transaction, at: Instant) -> bool {
+        let start = self.wire_free_at.max(at);
+        self.rhythm.hold_until(start, self.busy_of(i, tx)).is_none()
+    }
+
+    /// While a goal is expected too soon for the next servo's poll: the ready servo whose
+    /// position was read longest ago, if a read of its position alone still ends in time.
+    fn position_read_fitting(&self, at: Instant) -> Option<usize> {
+        let start = self.wire_free_at.max(at);
+        let (i, _) = self
             .servos
-            .iter()
-            .map(|s| s.return_delay(&self.cfg))
-            .max()
-            .unwrap_or_default();
-        self.cfg.wire_time(8 + 26) + return_delay + Duration::from_micros(150)
-    }
-
-    /// How long a position-only read holds the bus (see [`BusMaster::poll_busy`]).
-    fn position_poll_busy(&self) -> Duration {
-        self.poll_busy() - self.cfg.wire_time(26 - 10)
-    }
-
-    /// When a full poll would still hold the bus at the next goal: the servo for a position-only
-    /// read that ends in time (the ready servo whose position was read longest ago), if any.
-    fn position_read_fitting(&self, now: Instant) -> Option<usize> {
-        if self
-            .rhythm
-            .hold_until(now, self.position_poll_busy())
-            .is_some()
-        {
-            return None;
-        }
-        self.servos
             .iter()
             .enumerate()
             .filter(|(_, s)| s.phase == Phase::Ready)
-            .min_by_key(|(_, s)| s.position_read_at())
-            .map(|(i, _)| i)
+            .min_by_key(|(_, s)| s.position_read_at())?;
+        let gated = self
+            .rhythm
+            .hold_until(start, self.busy_of(i, Transaction::Motion))
+            .is_some();
+        (gated && self.fits(i, Transaction::Position, at)).then_some(i)
     }
 
     /// How far ahead of the wire a long packet may be queued: one frame of the largest size.
@@ -432,7 +510,7 @@ impl BusMaster {
         let id = s.id();
         let packet = s.request(tx);
         match tx {
-            Transaction::Telemetry => s.last_poll_at = Some(now),
+            Transaction::Telemetry | Transaction::Motion => s.last_poll_at = Some(now),
             Transaction::Verify => s.last_verify_at = Some(now),
             _ => {}
         }
@@ -441,12 +519,14 @@ impl BusMaster {
             Transaction::Identify | Transaction::ReadRam => TxKind::Init(id),
             Transaction::Probe => TxKind::Probe(id),
             Transaction::Telemetry => TxKind::Poll(id),
+            Transaction::Motion => TxKind::MotionPoll(id),
             Transaction::Position => TxKind::PositionPoll(id),
             Transaction::Verify => TxKind::Verify(id),
             Transaction::Force(_) => TxKind::Force(id),
         };
         match tx {
             Transaction::Telemetry => self.counters.polls += 1,
+            Transaction::Motion => self.counters.motion_polls += 1,
             Transaction::Position => self.counters.position_polls += 1,
             _ => self.counters.other_requests += 1,
         }
@@ -461,6 +541,7 @@ impl BusMaster {
                 expected,
                 complete_at,
                 looked: false,
+                garbled: false,
                 deadline: complete_at + self.cfg.turnaround,
             });
         }
@@ -476,6 +557,7 @@ impl BusMaster {
         let wire_time = self.cfg.wire_time(bytes.len());
         let start = self.wire_free_at.max(now);
         self.wire_free_at = start + wire_time;
+        self.last_start = Some(start);
         self.counters.bytes_sent += bytes.len() as u64;
         self.counters.wire_busy_ns += self.cfg.baud.wire_time_ns(bytes.len());
         Transmit {
@@ -657,20 +739,16 @@ impl BusMaster {
             })
             .flatten()
             .min()?;
-        // A request due inside a goal's arrival window waits for the window to close (a goal
-        // arriving meanwhile is taken at once through `set_goal`); a position-only read that
-        // ends before the window opens is due at once.
-        if self.rhythm.hold_until(self.now, self.poll_busy()).is_some()
-            && self.position_read_fitting(self.now).is_some()
-        {
-            return Some(self.now);
-        }
         let at = next.max(self.now);
-        Some(
-            self.rhythm
-                .hold_until(at, self.poll_busy())
-                .map_or(next, |closes| closes.max(next)),
-        )
+        let at = at.max(self.gathering_until(at).unwrap_or(at));
+        if self.next_request(at).is_some() {
+            return Some(at);
+        }
+        // Held for an expected goal (a goal arriving meanwhile is taken at once through
+        // `set_goal`): the window's end, when everything fits again.
+        let start = self.wire_free_at.max(at);
+        let closes = self.rhythm.window(start).map_or(at, |(_, closes)| closes);
+        Some(closes.max(at))
     }
 
     /// How many more bytes would complete the reply awaited (at least 1), or `None` when no

@@ -1,78 +1,137 @@
-//! The rhythm of incoming goals, so that a telemetry poll is not started just before the next
-//! goal is due. An autopilot sends its outputs at a steady rate (50 Hz is a 20 ms period); a
-//! poll holds the half-duplex bus for about 3 ms at 115 200 bit/s, and a goal that arrives
-//! while one is in flight waits for it. When the goals keep a steady period, the bus master
-//! leaves the bus free from shortly before each expected goal until it arrives (or until its
-//! arrival window has passed), and polls in the rest of the period.
+//! The rhythm of incoming goals, so that no poll holds the bus when a goal comes. An autopilot
+//! sends its outputs at a steady rate (50 Hz is a 20 ms period), in one or several messages
+//! per tick (SERVO_OUTPUT_RAW ports 0 and 1, ACTUATOR_OUTPUT_STATUS); a poll holds the
+//! half-duplex bus for 2–3 ms at 115 200 bit/s, and a goal that arrives while one is in flight
+//! waits for it. When the goals keep a steady period, the bus master leaves the bus free from
+//! shortly before each expected tick until it arrives (or, for a late tick, until a good part
+//! of the period has passed), and polls in the rest of the period.
+//!
+//! The expected tick is predicted from a smoothed phase, not from the last arrival alone: with
+//! arrivals that jitter by ±1 ms around a steady clock, the next one is within ±1 ms of the
+//! prediction, where the last arrival alone would leave ±2 ms.
 //!
 //! Plain data and arithmetic on instants handed in: no clock, no I/O.
 
 use std::time::{Duration, Instant};
 
-/// Goals closer together than this belong to one autopilot message.
-const SAME_MESSAGE: Duration = Duration::from_millis(1);
+/// Goal messages closer together than this belong to one autopilot tick, at the least.
+const SAME_TICK: Duration = Duration::from_millis(1);
 /// Periods shorter than this leave no room to gate polls without starving telemetry.
 const MIN_PERIOD: Duration = Duration::from_millis(4);
-/// The rhythm is trusted for this many periods after the last goal.
+/// The rhythm is trusted for this many periods after the last tick.
 const TRUSTED_PERIODS: u32 = 3;
 /// Intervals measured before the rhythm is trusted.
 const MIN_SAMPLES: u32 = 4;
-/// Slack added to the arrival window on both sides, besides twice the measured jitter.
+/// Slack added to the arrival window on both sides, besides the measured jitter.
 const SLACK: Duration = Duration::from_micros(300);
+/// The window opens this many mean deviations before the predicted tick.
+const SPREAD_DEVIATIONS: u32 = 3;
 
-/// The measured period and jitter of goal messages.
+/// The measured period, phase and jitter of the autopilot's ticks.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct GoalRhythm {
+    /// When the latest tick began (its first goal).
     last: Option<Instant>,
+    /// When the latest tick was due by the smoothed phase.
+    anchor: Option<Instant>,
+    /// The latest goal of any tick.
+    latest: Option<Instant>,
     period: Option<Duration>,
+    /// Mean deviation of ticks from their predicted instant.
     jitter: Duration,
     /// Intervals that agreed with the period so far.
     samples: u32,
-    /// Intervals in a row shorter than half the period.
+    /// Goal messages in a row that came less than half a period after the tick before.
     short_in_a_row: u32,
+    /// Messages closer than this to the one before belong to the same tick.
+    same_tick: Duration,
 }
 
 impl GoalRhythm {
+    /// A rhythm in which goal messages less than `same_tick` apart (at least 1 ms) belong to
+    /// one autopilot tick.
+    pub fn new(same_tick: Duration) -> Self {
+        GoalRhythm {
+            same_tick: same_tick.max(SAME_TICK),
+            ..GoalRhythm::default()
+        }
+    }
+
     /// A goal message arrived at `now`.
     pub fn goal_at(&mut self, now: Instant) {
-        let Some(last) = self.last else {
+        let previous = self.latest.replace(now);
+        let (Some(last), Some(anchor), Some(previous)) = (self.last, self.anchor, previous) else {
             self.last = Some(now);
+            self.anchor = Some(now);
             return;
         };
+        let gap = now.saturating_duration_since(previous);
+        if gap < self.same_tick.max(SAME_TICK) {
+            return;
+        }
         let interval = now.saturating_duration_since(last);
-        if interval < SAME_MESSAGE {
+        let Some(p) = self.period else {
+            self.last = Some(now);
+            self.anchor = Some(now);
+            if interval < Duration::from_secs(1) {
+                self.period = Some(interval);
+            }
+            return;
+        };
+        // Messages in a row less than half a period apart say the stream is faster than the
+        // one measured (one or two are several messages of one tick): it is learnt afresh.
+        if gap < p / 2 {
+            self.short_in_a_row += 1;
+            if self.short_in_a_row >= 3 {
+                *self = GoalRhythm {
+                    last: Some(now),
+                    anchor: Some(now),
+                    latest: Some(now),
+                    period: Some(gap),
+                    ..GoalRhythm::new(self.same_tick)
+                };
+                return;
+            }
+        } else {
+            self.short_in_a_row = 0;
+        }
+        // The tick this message belongs to: the nearest whole number of periods after the
+        // anchor. None: a later message of the latest tick (another port, a late message).
+        // Several: ticks were skipped (e.g. unchanged outputs).
+        let periods =
+            (now.saturating_duration_since(anchor).as_nanos() + p.as_nanos() / 2) / p.as_nanos();
+        if periods == 0 {
             return;
         }
         self.last = Some(now);
-        match self.period {
-            None if interval < Duration::from_secs(1) => self.period = Some(interval),
-            None => {}
-            Some(p) => {
-                // Short intervals are jitter, until three in a row say the stream is faster
-                // than the one measured: then it is learnt afresh.
-                if interval < p / 2 {
-                    self.short_in_a_row += 1;
-                    if self.short_in_a_row >= 3 {
-                        *self = GoalRhythm {
-                            last: Some(now),
-                            period: Some(interval),
-                            ..GoalRhythm::default()
-                        };
-                    } else {
-                        self.jitter = (self.jitter * 7 + p - interval) / 8;
-                    }
-                    return;
-                }
-                self.short_in_a_row = 0;
-                // Skipped messages (unchanged outputs) show as whole multiples: not a new period.
-                if interval > p + p / 2 {
-                    return;
-                }
-                let deviation = interval.abs_diff(p);
-                self.period = Some((p * 7 + interval) / 8);
-                self.jitter = (self.jitter * 7 + deviation) / 8;
-                self.samples = self.samples.saturating_add(1);
+        let periods = u32::try_from(periods).unwrap_or(u32::MAX);
+        let predicted = anchor + p * periods;
+        // An alpha-beta tracker of phase and period: half the deviation moves the phase, an
+        // eighth of it (per period) the period. A tick far off its prediction (a late message)
+        // counts for no more than twice the window's early side.
+        let bound = self.early() * 2;
+        let (late, deviation) = match now.checked_duration_since(predicted) {
+            Some(d) => (true, d),
+            None => (false, predicted.saturating_duration_since(now)),
+        };
+        let error = deviation.min(bound);
+        let shift = |t: Instant, d: Duration| {
+            if late {
+                t + d
+            } else {
+                t.checked_sub(d).unwrap_or(t)
             }
+        };
+        self.anchor = Some(shift(predicted, error / 2));
+        let correction = error / 8 / periods;
+        self.period = Some(if late {
+            p + correction
+        } else {
+            p.saturating_sub(correction)
+        });
+        self.jitter = (self.jitter * 7 + deviation.min(bound)) / 8;
+        if periods == 1 && interval >= p / 2 && interval <= p + p / 2 {
+            self.samples = self.samples.saturating_add(1);
         }
     }
 
@@ -81,29 +140,52 @@ impl GoalRhythm {
         self.period
     }
 
+    /// The latest goal message of any tick.
+    pub fn latest_goal(&self) -> Option<Instant> {
+        self.latest
+    }
+
+    /// When the latest tick began, while the rhythm is trusted at `now` (see
+    /// [`GoalRhythm::window`]), with the period.
+    pub fn tick(&self, now: Instant) -> Option<(Instant, Duration)> {
+        self.window(now)?;
+        Some((self.last?, self.period?))
+    }
+
+    /// How long before the predicted tick the bus is kept free.
+    fn early(&self) -> Duration {
+        self.jitter * SPREAD_DEVIATIONS + SLACK
+    }
+
     /// If a transaction of length `busy` started at `now` would still hold the bus when the
-    /// next goal is expected, the instant until which the bus should stay free (the end of the
-    /// goal's arrival window); `None` when it may start.
+    /// next tick is expected, the instant until which the bus should stay free (the end of the
+    /// tick's arrival window); `None` when it may start.
+    ///
+    /// The window opens [`SPREAD_DEVIATIONS`] mean deviations (plus a slack) before the
+    /// predicted tick and closes as long after it, or half a period after it if that
+    /// is later: a tick that comes late (a delayed message) still finds the bus free, at the
+    /// cost of some polls in that one period.
     pub fn hold_until(&self, now: Instant, busy: Duration) -> Option<Instant> {
-        let (last, period) = (self.last?, self.period?);
-        if self.samples < MIN_SAMPLES
-            || period < MIN_PERIOD
-            || self.jitter * 4 > period
-            || busy * 2 > period
-        {
+        let (opens, closes) = self.window(now)?;
+        (busy * 2 <= self.period? && now + busy > opens && now < closes).then_some(closes)
+    }
+
+    /// The arrival window of the expected tick that has not ended at `now` (opens, closes),
+    /// or `None` when the rhythm gates nothing (not known, irregular, too fast, or stopped).
+    pub fn window(&self, now: Instant) -> Option<(Instant, Instant)> {
+        let (last, anchor, period) = (self.last?, self.anchor?, self.period?);
+        let early = self.early();
+        if self.samples < MIN_SAMPLES || period < MIN_PERIOD || early * 4 > period {
             return None;
         }
-        let since = now.saturating_duration_since(last);
-        if since > period * TRUSTED_PERIODS {
+        if now.saturating_duration_since(last) > period * TRUSTED_PERIODS {
             return None;
         }
-        let spread = self.jitter * 2 + SLACK;
-        // The expected arrival whose window has not ended yet.
-        let periods = (since.saturating_sub(spread).as_nanos() / period.as_nanos()) as u32 + 1;
-        let next = last + period * periods;
-        let opens = next.checked_sub(spread)?;
-        let closes = next + spread;
-        (now + busy > opens && now < closes).then_some(closes)
+        let late = early.max(period / 2);
+        let since = now.saturating_duration_since(anchor).saturating_sub(late);
+        let periods = (since.as_nanos() / period.as_nanos()) as u32 + 1;
+        let next = anchor + period * periods;
+        Some((next.checked_sub(early)?, next + late))
     }
 }
 
@@ -116,7 +198,7 @@ mod tests {
     }
 
     fn steady(t0: Instant, n: u32, period: Duration) -> GoalRhythm {
-        let mut r = GoalRhythm::default();
+        let mut r = GoalRhythm::new(ms(2));
         for k in 0..n {
             r.goal_at(t0 + period * k);
         }
@@ -149,16 +231,106 @@ mod tests {
         // Just after a goal: plenty of room.
         assert_eq!(r.hold_until(last + ms(1), busy), None);
         assert_eq!(r.hold_until(last + ms(16), busy), None);
-        // 17 ms after it a 3.2 ms poll would run into the goal due at 20 ms.
-        let closes = last + ms(20) + SLACK;
+        // 17 ms after it a 3.2 ms poll would run into the goal due at 20 ms. The bus is held
+        // until half a period after the expected goal, for a goal that comes late.
+        let closes = last + ms(20) + ms(10);
         assert_eq!(r.hold_until(last + ms(17), busy), Some(closes));
         assert_eq!(r.hold_until(last + ms(20), busy), Some(closes));
-        // The goal is late: once its window has closed, polling goes on.
+        assert_eq!(r.hold_until(last + ms(27), busy), Some(closes));
+        // The goal is later still: once its window has closed, polling goes on.
         assert_eq!(r.hold_until(closes, busy), None);
         // One skipped message (unchanged outputs): the next expected goal is gated too.
         assert_eq!(
             r.hold_until(last + ms(38), busy),
-            Some(last + ms(40) + SLACK)
+            Some(last + ms(40) + ms(10))
+        );
+    }
+
+    /// Arrivals spread uniformly over ±1 ms around a steady 50 Hz clock (a deterministic
+    /// sequence that covers the range).
+    fn jittery(t0: Instant, n: u32) -> (GoalRhythm, Vec<Instant>) {
+        let mut r = GoalRhythm::new(ms(2));
+        let mut at = Vec::new();
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        for k in 0..n {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let offset = (x % 2001) as i64 - 1000;
+            let tick = t0 + ms(20) * (k + 1);
+            let t = if offset >= 0 {
+                tick + Duration::from_micros(offset as u64)
+            } else {
+                tick - Duration::from_micros(offset.unsigned_abs())
+            };
+            at.push(t);
+            r.goal_at(t);
+        }
+        (r, at)
+    }
+
+    #[test]
+    fn a_jittery_tick_is_expected_from_the_smoothed_phase_and_always_finds_the_bus_free() {
+        let t0 = Instant::now();
+        let (r0, at) = jittery(t0, 200);
+        let busy = Duration::from_micros(2300);
+        // Replay: before every arrival after the first 20, a poll started as late as the rhythm
+        // allows ends before the goal arrives.
+        let mut r = GoalRhythm::new(ms(2));
+        let mut latest_start_slack = Duration::MAX;
+        for (k, &a) in at.iter().enumerate() {
+            if k >= 20 {
+                let prev = at[k - 1];
+                // The latest instant after the previous goal at which a poll may still start.
+                let mut t = prev + ms(3);
+                let mut last_ok = None;
+                while t < a {
+                    if r.hold_until(t, busy).is_none() {
+                        last_ok = Some(t);
+                    } else {
+                        break;
+                    }
+                    t += Duration::from_micros(50);
+                }
+                let start = last_ok.expect("room for a poll after a tick");
+                assert!(
+                    start + busy <= a,
+                    "tick {k}: a poll started at {start:?} ends after the goal"
+                );
+                latest_start_slack = latest_start_slack.min(a - (start + busy));
+            }
+            r.goal_at(a);
+        }
+        assert_eq!(r0.period(), r.period());
+        let p = r.period().unwrap();
+        assert!(p.abs_diff(ms(20)) < Duration::from_micros(200), "{p:?}");
+        // The window is not wider than it must be: the bus stays free for less than 5 ms
+        // before a tick.
+        assert!(latest_start_slack < ms(5), "{latest_start_slack:?}");
+    }
+
+    #[test]
+    fn messages_of_one_tick_and_late_messages_do_not_move_the_phase() {
+        let t0 = Instant::now();
+        let mut r = GoalRhythm::new(ms(2));
+        for k in 0..40u32 {
+            let tick = t0 + ms(20) * k;
+            r.goal_at(tick);
+            // Port 1 a tenth of a millisecond later, a third message 1.5 ms later, and now and
+            // then a message 7 ms late.
+            r.goal_at(tick + Duration::from_micros(100));
+            r.goal_at(tick + Duration::from_micros(1600));
+            if k % 10 == 5 {
+                r.goal_at(tick + ms(7));
+            }
+        }
+        assert_eq!(r.period(), Some(ms(20)));
+        let last = t0 + ms(20) * 39;
+        let busy = Duration::from_micros(2300);
+        assert_eq!(r.hold_until(last + ms(10), busy), None);
+        assert_eq!(
+            r.hold_until(last + ms(18), busy),
+            Some(last + ms(20) + ms(10))
         );
     }
 
@@ -170,7 +342,7 @@ mod tests {
         let r = steady(t0, 50, Duration::from_micros(2500));
         assert_eq!(r.hold_until(t0 + ms(124), busy), None);
         // Irregular arrivals: the jitter grows past a quarter of the period.
-        let mut r = GoalRhythm::default();
+        let mut r = GoalRhythm::new(ms(2));
         let offsets = [
             0u64, 9, 1, 8, 0, 9, 2, 8, 1, 9, 0, 8, 0, 9, 1, 8, 0, 9, 2, 8,
         ];

@@ -14,6 +14,9 @@ use crate::protocol::{
 };
 use std::time::{Duration, Instant};
 
+/// Bytes of a position-and-current read (registers 42–49).
+pub(super) const MOTION_LEN: u8 = 8;
+
 /// Where a servo is in its life on the bus.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Phase {
@@ -41,7 +44,9 @@ pub(super) enum Transaction {
     Probe,
     ReadRam,
     Telemetry,
-    /// Registers 42–43 alone, in bus time too short for a full telemetry poll.
+    /// Registers 42–49 (position and current), the poll between two full ones.
+    Motion,
+    /// Registers 42–43 alone, in bus time too short for any other poll.
     Position,
     Verify,
     Force(ForceMode),
@@ -69,6 +74,8 @@ pub(super) struct Servo {
     pub setup: ServoSetup,
     pub phase: Phase,
     pub consecutive_timeouts: u32,
+    /// Since when the servo has not been heard at all (the first of its silent timeouts).
+    pub silent_since: Option<Instant>,
     pub timeouts: u64,
     pub telemetry_count: u64,
 
@@ -79,6 +86,11 @@ pub(super) struct Servo {
     /// When a position-only read last refreshed the telemetry's position (`None` since the
     /// last full poll).
     pub position_at: Option<Instant>,
+    /// When a position-and-current read last refreshed the telemetry's position and current.
+    pub motion_at: Option<Instant>,
+    /// The temperature flags changed in a reply that carried no temperature: read it at the
+    /// servo's next poll.
+    pub full_wanted: bool,
     pub flags: ReplyFlags,
     pub last_poll_at: Option<Instant>,
     pub last_verify_at: Option<Instant>,
@@ -90,6 +102,8 @@ pub(super) struct Servo {
     pub force_backoff: Duration,
 
     pub desired: Option<Goal>,
+    /// When the latest position goal was handed in.
+    pub goal_at: Option<Instant>,
     pub sent: Option<SentGoal>,
     /// Register 32 (goal time) as last read or written; `None` when unknown.
     pub goal_time_reg: Option<Ms10>,
@@ -117,12 +131,15 @@ impl Servo {
             setup,
             phase: Phase::Identify,
             consecutive_timeouts: 0,
+            silent_since: None,
             timeouts: 0,
             telemetry_count: 0,
             identity: ServoIdentity::default(),
             telemetry: None,
             telemetry_at: None,
             position_at: None,
+            motion_at: None,
+            full_wanted: false,
             flags: ReplyFlags::default(),
             last_poll_at: None,
             last_verify_at: None,
@@ -131,6 +148,7 @@ impl Servo {
             force_retry_at: None,
             force_backoff: Duration::ZERO,
             desired: None,
+            goal_at: None,
             sent: None,
             goal_time_reg: None,
             soft_pending: true,
@@ -212,9 +230,26 @@ impl Servo {
                 match (verify_at, poll_at) {
                     (None, _) => Some((None, Transaction::Verify)),
                     (Some(v), Some(p)) if v <= p => Some((Some(v), Transaction::Verify)),
-                    (Some(_), p) => Some((p, Transaction::Telemetry)),
+                    (Some(_), p) => Some((p, self.periodic_read(p, cfg))),
                 }
             }
+        }
+    }
+
+    /// The periodic read due at `at` (`None`: now): the full registers 42–59 when the
+    /// temperature and voltage are `full_telemetry_interval` old then, position and current
+    /// otherwise.
+    fn periodic_read(&self, at: Option<Instant>, cfg: &BusConfig) -> Transaction {
+        let full_due = match (self.telemetry_at, at.or(self.last_poll_at)) {
+            (Some(full), Some(at)) => {
+                at.saturating_duration_since(full) >= cfg.full_telemetry_interval
+            }
+            _ => true,
+        };
+        if full_due || self.full_wanted {
+            Transaction::Telemetry
+        } else {
+            Transaction::Motion
         }
     }
 
@@ -228,6 +263,9 @@ impl Servo {
             Transaction::Telemetry => ShortPacket::request(id, ReplyRequest::Registers42To59),
             // Registers 42–43 are always a valid read; were they not, a full poll would do.
             Transaction::Position => ShortPacket::read(id, addr::PRESENT_POSITION, 2)
+                .unwrap_or_else(|_| ShortPacket::request(id, ReplyRequest::Registers42To59)),
+            // Registers 42–49: position, present time, reserved, load.
+            Transaction::Motion => ShortPacket::read(id, addr::PRESENT_POSITION, MOTION_LEN)
                 .unwrap_or_else(|_| ShortPacket::request(id, ReplyRequest::Registers42To59)),
             Transaction::Verify => ShortPacket::request(id, ReplyRequest::Registers30To41),
             Transaction::ReadRam => self
@@ -259,6 +297,11 @@ impl Servo {
         let old = self.flags;
         let new = flags.meaningful();
         self.flags = new;
+        if new.temperature_alarm() != old.temperature_alarm()
+            || new.temperature_error() != old.temperature_error()
+        {
+            self.full_wanted = true;
+        }
         if new.temperature_alarm() != old.temperature_alarm() {
             events.push(BusEvent::TemperatureAlarm {
                 id,
@@ -437,6 +480,7 @@ impl Servo {
     /// Keep a telemetry reading as the servo's latest, whatever its start-up phase: the values
     /// are true even while it is being re-initialised.
     pub fn store_reading(&mut self, t: Telemetry, now: Instant) {
+        self.full_wanted = false;
         self.telemetry = Some(t);
         self.telemetry_at = Some(now);
         self.position_at = None;
@@ -454,9 +498,31 @@ impl Servo {
         self.last_position = Some(position);
     }
 
-    /// When the position was last read, by a full poll or a position-only read.
+    /// Registers 42–49 arrived (position and current): the position and current of the
+    /// latest telemetry are replaced; its temperature, voltage and their time are kept.
+    pub fn store_motion(&mut self, data: &[u8], now: Instant) {
+        let Some(motion) = Telemetry::motion_from_registers(data) else {
+            return;
+        };
+        if let Some(t) = self.telemetry.as_mut() {
+            t.present_position = motion.present_position;
+            t.present_time = motion.present_time;
+            t.present_load = motion.present_load;
+            self.position_at = Some(now);
+            self.motion_at = Some(now);
+        }
+        self.last_position = Some(motion.present_position);
+    }
+
+    /// When the position was last read, by any poll.
     pub fn position_read_at(&self) -> Option<Instant> {
         self.position_at.or(self.telemetry_at)
+    }
+
+    /// A reply came (good or garbled): the servo is there.
+    pub fn heard(&mut self) {
+        self.consecutive_timeouts = 0;
+        self.silent_since = None;
     }
 
     pub fn on_telemetry(
@@ -523,9 +589,20 @@ impl Servo {
         }
     }
 
-    /// A reply did not come.
-    pub fn on_timeout(&mut self, now: Instant, cfg: &BusConfig, events: &mut Vec<BusEvent>) {
+    /// No usable reply came: none at all (`garbled` false), or one with a bad sum. A garbled
+    /// reply counts as missed but shows the servo is there: only silence takes it offline.
+    pub fn on_timeout(
+        &mut self,
+        garbled: bool,
+        now: Instant,
+        cfg: &BusConfig,
+        events: &mut Vec<BusEvent>,
+    ) {
         self.timeouts += 1;
+        if garbled && !matches!(self.phase, Phase::Offline { .. }) {
+            self.heard();
+            return;
+        }
         if let Phase::Offline { backoff, .. } = self.phase {
             let backoff = cfg.probe_backoff.after(backoff);
             self.phase = Phase::Offline {
@@ -535,7 +612,10 @@ impl Servo {
             return;
         }
         self.consecutive_timeouts = self.consecutive_timeouts.saturating_add(1);
-        if self.consecutive_timeouts >= cfg.offline_after_timeouts.max(1) {
+        let silent_since = *self.silent_since.get_or_insert(now);
+        if self.consecutive_timeouts >= cfg.offline_after_timeouts.max(1)
+            && now.saturating_duration_since(silent_since) >= cfg.offline_after_silence
+        {
             let backoff = cfg.probe_backoff.first;
             self.phase = Phase::Offline {
                 next_probe: now + backoff,

@@ -101,6 +101,8 @@ pub struct BusCounters {
     pub command_frames: u64,
     /// Telemetry polls written.
     pub polls: u64,
+    /// Position-and-current reads written (registers 42–49, between two full polls).
+    pub motion_polls: u64,
     /// Position-only reads written (bus time left before a goal, too short for a poll).
     pub position_polls: u64,
     /// Telemetry replies received.

@@ -51,6 +51,8 @@ struct FakeServo {
     refuse_force: bool,
     /// The rod does not follow the goal.
     stuck: bool,
+    /// Every reply goes out with a bad sum.
+    garble: bool,
     /// Every goal write seen: (position, goal time if written).
     goal_writes: Vec<(i16, Option<u16>)>,
 }
@@ -76,6 +78,7 @@ impl FakeServo {
             present: true,
             refuse_force: false,
             stuck: false,
+            garble: false,
             goal_writes: Vec::new(),
         }
     }
@@ -181,15 +184,19 @@ impl FakeServo {
             return None;
         }
         let regs = self.regs();
-        Some(
-            ReturnPacket {
-                id: self.id,
-                flags: ReplyFlags(self.flags),
-                address: a as u8,
-                data: regs[a..a + n].to_vec(),
-            }
-            .to_bytes(),
-        )
+        let mut reply = ReturnPacket {
+            id: self.id,
+            flags: ReplyFlags(self.flags),
+            address: a as u8,
+            data: regs[a..a + n].to_vec(),
+        }
+        .to_bytes();
+        if self.garble
+            && let Some(sum) = reply.last_mut()
+        {
+            *sum ^= 0x55;
+        }
+        Some(reply)
     }
 }
 
@@ -364,7 +371,14 @@ impl Rig {
 
     /// Start every servo and switch force ON with a first goal at its present position.
     fn online_with_force(ids: &[u8]) -> Self {
-        let mut rig = Self::with_ids(ids);
+        Self::online_with_force_on(config(ids))
+    }
+
+    /// [`Rig::online_with_force`] on the bus `cfg`.
+    fn online_with_force_on(cfg: BusConfig) -> Self {
+        let ids: Vec<u8> = cfg.servos.iter().map(|s| s.id.get()).collect();
+        let ids = &ids[..];
+        let mut rig = Self::new(cfg);
         rig.run(ms(100));
         for &n in ids {
             assert_eq!(rig.health(n), Health::Online, "servo {n} online");
@@ -386,6 +400,14 @@ fn config(ids: &[u8]) -> BusConfig {
             .map(|&n| ServoSetup::new(id(n), format!("s{n}")))
             .collect(),
     )
+}
+
+/// A bus whose every poll reads the full registers 42–59 (no reads of position and current
+/// alone between them).
+fn full_polls_only(ids: &[u8]) -> BusConfig {
+    let mut cfg = config(ids);
+    cfg.full_telemetry_interval = Duration::ZERO;
+    cfg
 }
 
 /// (VID, position, goal time) of every entry of a long packet.
@@ -569,7 +591,7 @@ fn reply_timeout_is_wire_time_plus_return_delay_plus_turnaround() {
     assert_eq!(rig.m.poll_timeout(), Some(expected));
 
     // Once register 7 says 3 ms, a telemetry poll: 8 + 26 bytes + 3 ms + 2 ms.
-    let mut rig = Rig::with_ids(&[1]);
+    let mut rig = Rig::new(full_polls_only(&[1]));
     rig.servo(1).return_delay_ms = 3;
     rig.run(ms(100));
     assert_eq!(rig.health(1), Health::Online);
@@ -585,7 +607,9 @@ fn reply_timeout_is_wire_time_plus_return_delay_plus_turnaround() {
     );
 
     // A request queued behind a long packet counts from the end of that packet.
-    let mut rig = Rig::online_with_force(&[1, 2]);
+    let mut cfg = config(&[1, 2]);
+    cfg.tick_gather = Duration::ZERO;
+    let mut rig = Rig::online_with_force_on(cfg);
     rig.settle();
     let t = rig.t;
     rig.set_goal(1, Goal::Position(MmCenti(10)));
@@ -593,10 +617,10 @@ fn reply_timeout_is_wire_time_plus_return_delay_plus_turnaround() {
     assert_eq!(long.kind, TxKind::Command);
     let poll = rig.m.poll_transmit(t).unwrap();
     assert!(poll.expects_reply);
-    let reply_len = if matches!(poll.kind, TxKind::Poll(_)) {
-        26
-    } else {
-        20
+    let reply_len = match poll.kind {
+        TxKind::Poll(_) => 26,
+        TxKind::MotionPoll(_) => 16,
+        _ => 20,
     };
     assert_eq!(
         rig.m.poll_timeout(),
@@ -608,14 +632,28 @@ fn reply_timeout_is_wire_time_plus_return_delay_plus_turnaround() {
 fn a_servo_goes_offline_after_n_timeouts_and_is_probed_with_backoff() {
     let mut rig = Rig::online_with_force(&[1, 2]);
     rig.servo(2).present = false;
-    rig.run(ms(30));
-    let lost_at = rig
-        .events
-        .iter()
-        .position(|e| *e == BusEvent::ServoLost { id: id(2) });
-    assert!(lost_at.is_some(), "{:?}", rig.events);
+    let silent_from = rig.t;
+    // Three missed replies are not enough: the servo must also have been silent for
+    // `offline_after_silence`.
+    while rig.m.status().servo(id(2)).unwrap().consecutive_timeouts < 3 {
+        rig.run(ms(1));
+    }
+    assert_eq!(rig.health(2), Health::Online);
+    assert!(!rig.events.contains(&BusEvent::ServoLost { id: id(2) }));
+    while !rig.events.contains(&BusEvent::ServoLost { id: id(2) }) {
+        rig.run(ms(1));
+        assert!(
+            rig.t - silent_from < ms(400),
+            "not lost after 400 ms of silence"
+        );
+    }
+    assert!(
+        rig.t - silent_from >= ms(300),
+        "lost after {:?}",
+        rig.t - silent_from
+    );
     assert_eq!(rig.health(2), Health::Offline);
-    assert_eq!(rig.m.status().servo(id(2)).unwrap().consecutive_timeouts, 3);
+    assert!(rig.m.status().servo(id(2)).unwrap().consecutive_timeouts >= 3);
     assert_eq!(
         rig.health(1),
         Health::Online,
@@ -727,7 +765,7 @@ fn a_different_model_is_refused_and_never_commanded() {
 
 #[test]
 fn a_temperature_error_is_reported_and_force_on_is_not_retried() {
-    let mut rig = Rig::online_with_force(&[1, 2]);
+    let mut rig = Rig::online_with_force_on(full_polls_only(&[1, 2]));
     rig.set_goal(1, Goal::Position(MmCenti(100)));
     rig.run(ms(50));
     // The servo overheats: error flag, force off, refuses force ON.
@@ -1000,7 +1038,7 @@ fn goals_are_coalesced_and_counted() {
 
 #[test]
 fn telemetry_polls_go_round_robin_and_are_published() {
-    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    let mut rig = Rig::online_with_force_on(full_polls_only(&[1, 2, 3, 4]));
     rig.servo(3).position = 77;
     rig.servo(3).load = 42;
     rig.servo(3).temperature = 51;
@@ -1259,7 +1297,7 @@ fn shutdown_waits_for_the_pending_reply_then_switches_force_off() {
 fn a_servo_missing_at_startup_is_reported_lost() {
     let mut rig = Rig::with_ids(&[1, 2]);
     rig.servo(2).present = false;
-    rig.run(ms(200));
+    rig.run(ms(500));
     assert_eq!(rig.health(2), Health::Offline);
     assert!(rig.events.contains(&BusEvent::ServoLost { id: id(2) }));
     assert_eq!(rig.health(1), Health::Online);
@@ -1311,6 +1349,7 @@ fn periodic_goals_find_the_bus_free_and_the_time_left_is_read() {
     let mut delays = Vec::new();
     let mut position_reads = Vec::new();
     let polls_before = rig.m.counters().polls;
+    let motion_before = rig.m.counters().motion_polls;
     let t_start = rig.t;
     for k in 0..100i16 {
         let at = rig.t;
@@ -1334,21 +1373,42 @@ fn periodic_goals_find_the_bus_free_and_the_time_left_is_read() {
         }
     }
     assert_eq!(rig.m.goal_period(), Some(period));
-    let polls = rig.m.counters().polls - polls_before;
+    let c = *rig.m.counters();
+    let polls = c.polls - polls_before;
+    let motion_polls = c.motion_polls - motion_before;
     let seconds = rig.t.duration_since(t_start).as_secs_f64();
     // Once the rhythm is known, every frame leaves the moment its goals arrive: no poll or
     // position read holds the bus then.
     assert!(delays.iter().all(|d| *d == Duration::ZERO), "{delays:?}");
-    // ... telemetry still runs at more than 60 Hz per servo ...
-    let per_servo_hz = polls as f64 / seconds / 4.0;
-    assert!(per_servo_hz > 60.0, "{per_servo_hz:.1} Hz per servo");
-    // ... and the time left before each goal, too short for a sixth poll, carries a read of
-    // registers 42–43 alone.
+    // ... position and current are still read at more than 60 Hz per servo, temperature and
+    // voltage at more than 10 Hz.
+    let motion_hz = (polls + motion_polls) as f64 / seconds / 4.0;
+    let full_hz = polls as f64 / seconds / 4.0;
     assert!(
-        position_reads.len() >= 80,
-        "{} position reads in 90 periods",
-        position_reads.len()
+        motion_hz > 60.0,
+        "position and current at {motion_hz:.1} Hz per servo"
     );
+    assert!(
+        full_hz > 10.0,
+        "temperature and voltage at {full_hz:.1} Hz per servo"
+    );
+    // Reads of position and current are registers 42–49.
+    let motion_reads: Vec<_> = rig
+        .log
+        .iter()
+        .filter(|s| matches!(s.tx.kind, TxKind::MotionPoll(_)))
+        .collect();
+    assert!(!motion_reads.is_empty());
+    for s in motion_reads {
+        assert_eq!(
+            &s.tx.bytes[3..7],
+            &[0x0F, 0x2A, 0x08, 0x00],
+            "{:02X?}",
+            s.tx.bytes
+        );
+    }
+    // The time left before a goal, too short for any other poll, carries a read of registers
+    // 42–43 alone when it fits (see the position-read test for the period where it does).
     for bytes in &position_reads {
         assert_eq!(&bytes[3..7], &[0x0F, 0x2A, 0x02, 0x00], "{bytes:02X?}");
     }
@@ -1407,7 +1467,7 @@ fn a_goal_waits_for_the_reply_in_flight_and_nothing_else() {
 
 #[test]
 fn a_reply_is_awaited_from_its_earliest_end_and_counted_down_byte_by_byte() {
-    let mut rig = Rig::online_with_force(&[1]);
+    let mut rig = Rig::online_with_force_on(full_polls_only(&[1]));
     rig.settle();
     rig.run(ms(50));
     rig.settle();
@@ -1455,36 +1515,44 @@ fn a_position_read_replaces_only_the_position_of_the_latest_telemetry() {
             rig.servo(n).load = 100 + k as u16;
             rig.set_goal(n, Goal::Position(MmCenti(k * 10 + i16::from(n))));
         }
-        rig.run(ms(20));
+        // At 55.6 Hz the time left before each goal often fits a position read, not more.
+        rig.run(ms(18));
     }
     let period_of = |t: Instant| periods.iter().rposition(|p| *p <= t).unwrap() as i16;
+    // The fake servo answers with the values of the instant a request is written.
+    let last_request = |n: u8, kinds: &[fn(ServoId) -> TxKind]| {
+        rig.log
+            .iter()
+            .rev()
+            .find(|s| kinds.iter().any(|k| s.tx.kind == k(id(n))))
+            .map(|s| s.at)
+            .expect("a request")
+    };
     let status = rig.m.status();
-    let mut checked = 0;
+    let mut position_only = 0;
     for s in &status.servos {
+        let n = s.id.get();
         let t = s.telemetry.expect("telemetry");
-        let polled = s.telemetry_at.expect("polled");
-        // The load is that of the last full poll, whatever was read since.
+        let full = last_request(n, &[TxKind::Poll]);
+        let load = last_request(n, &[TxKind::Poll, TxKind::MotionPoll]);
+        let position = last_request(n, &[TxKind::Poll, TxKind::MotionPoll, TxKind::PositionPoll]);
+        // Temperature and voltage of the last full poll; the load of the last full poll or
+        // read of position and current; the position of the last read of any kind.
+        assert!(s.telemetry_at.unwrap() > full);
+        assert_eq!(t.present_load.0, 100 + period_of(load) as u16, "servo {n}");
         assert_eq!(
-            t.present_load.0,
-            100 + period_of(polled) as u16,
-            "servo {}",
-            s.id
+            t.present_position.0,
+            2000 + period_of(position),
+            "servo {n}"
         );
-        match s.position_at {
-            Some(read) => {
-                assert!(read > polled);
-                assert_eq!(
-                    t.present_position.0,
-                    2000 + period_of(read),
-                    "servo {}",
-                    s.id
-                );
-                checked += 1;
-            }
-            None => assert_eq!(t.present_position.0, 2000 + period_of(polled)),
+        if position > load {
+            position_only += 1;
         }
     }
-    assert!(checked > 0, "no servo was last read by a position read");
+    assert!(
+        position_only > 0,
+        "no servo was last read by a position read"
+    );
 }
 
 /// Run `requests` requests like the bus thread does: look when [`BusMaster::reply_look_at`]
@@ -1596,5 +1664,240 @@ fn one_very_late_reply_does_not_delay_the_looks_at_the_next_ones() {
     assert!(
         looks[1..].iter().all(|(_, idle)| *idle <= byte),
         "{looks:?}"
+    );
+}
+
+/// Goals at `period` with the given arrival offsets (µs, may be negative) per tick, each tick
+/// in `messages` messages `spacing` apart, each message carrying a new goal for `servos`.
+/// Returns, per goal message after the first 20 ticks, how long its frame waited, and what the
+/// bus carried when the message came.
+fn run_autopilot(
+    rig: &mut Rig,
+    ticks: usize,
+    offset_us: impl Fn(usize, usize) -> i64,
+    messages: &[(&[u8], Duration)],
+) -> Vec<(Duration, Option<TxKind>)> {
+    let period = ms(20);
+    let t0 = rig.t + ms(5);
+    let mut arrivals: Vec<(Instant, usize, usize)> = Vec::new();
+    for k in 0..ticks {
+        for (m, (_, spacing)) in messages.iter().enumerate() {
+            let base = t0 + period * k as u32 + *spacing;
+            let off = offset_us(k, m);
+            let at = if off >= 0 {
+                base + us(off as u64)
+            } else {
+                base - us(off.unsigned_abs())
+            };
+            arrivals.push((at, k, m));
+        }
+    }
+    arrivals.sort_by_key(|a| a.0);
+    let mut waits = Vec::new();
+    let mut value = 0i16;
+    for (at, k, m) in arrivals {
+        rig.run(at.saturating_duration_since(rig.t));
+        let in_flight = rig
+            .m
+            .reply_pending()
+            .then(|| rig.log.last().map(|s| s.tx.kind))
+            .flatten();
+        let from = rig.log.len();
+        value += 1;
+        for &n in messages[m].0 {
+            rig.set_goal(n, Goal::Position(MmCenti(value % 2000)));
+        }
+        rig.run(us(10));
+        while !rig
+            .sent_since(from)
+            .iter()
+            .any(|s| s.tx.kind == TxKind::Command)
+        {
+            rig.run(us(50));
+        }
+        let frame = rig
+            .sent_since(from)
+            .iter()
+            .find(|s| s.tx.kind == TxKind::Command)
+            .unwrap()
+            .at;
+        if k >= 20 {
+            waits.push((frame - at, in_flight));
+        }
+    }
+    waits
+}
+
+const PORT0: &[u8] = &[1, 2, 3];
+const PORT1: &[u8] = &[4];
+
+#[test]
+fn no_goal_of_a_tick_waits_behind_a_poll_started_after_the_tick_began() {
+    // Ports 0 and 1 of each tick, 0.1 ms apart; a command 1.5 ms after port 0 in every tenth.
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    let waits = run_autopilot(&mut rig, 120, |_, _| 0, &[(PORT0, us(0)), (PORT1, us(100))]);
+    let behind_poll: Vec<_> = waits.iter().filter(|w| w.1.is_some()).collect();
+    assert!(behind_poll.is_empty(), "{behind_poll:?}");
+    // Port 0's frame leaves at once; port 1's waits only for port 0's frame on the wire.
+    assert!(waits.iter().all(|w| w.0 == Duration::ZERO), "{waits:?}");
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    let waits = run_autopilot(
+        &mut rig,
+        120,
+        |_, _| 0,
+        &[(PORT0, us(0)), (PORT1, us(100)), (&[2], us(1600))],
+    );
+    assert!(waits.iter().all(|w| w.1.is_none()), "{waits:?}");
+}
+
+/// A deterministic uniform offset in ±`range_us` for tick `k`.
+fn uniform(k: usize, salt: usize, range_us: i64) -> i64 {
+    let mut x = (k as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (salt as u64) << 32;
+    x ^= x >> 29;
+    x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x ^= x >> 32;
+    (x % (2 * range_us as u64 + 1)) as i64 - range_us
+}
+
+#[test]
+fn a_jittery_autopilot_finds_the_bus_free_and_telemetry_keeps_its_rates() {
+    // The tick's send time jitters by ±1 ms; both ports go out together.
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    let c0 = *rig.m.counters();
+    let t0 = rig.t;
+    let waits = run_autopilot(
+        &mut rig,
+        150,
+        |k, _| uniform(k, 0, 1000),
+        &[(PORT0, us(0)), (PORT1, us(100))],
+    );
+    let behind: Vec<_> = waits.iter().filter(|w| w.1.is_some()).collect();
+    assert!(
+        behind.is_empty(),
+        "{} of {}: {behind:?}",
+        behind.len(),
+        waits.len()
+    );
+    let c = rig.m.counters();
+    let seconds = (rig.t - t0).as_secs_f64();
+    let motion_hz =
+        ((c.polls + c.motion_polls) - (c0.polls + c0.motion_polls)) as f64 / seconds / 4.0;
+    let full_hz = (c.polls - c0.polls) as f64 / seconds / 4.0;
+    assert!(motion_hz >= 60.0, "{motion_hz:.1} Hz");
+    assert!(full_hz >= 10.0, "{full_hz:.1} Hz");
+
+    // One message in twenty is 3–8 ms late: the bus is still free when it comes.
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    let late = |k: usize, m: usize| {
+        if uniform(k, m + 7, 1000).rem_euclid(20) == 0 {
+            3000 + uniform(k, m + 11, 2500) + 2500
+        } else {
+            0
+        }
+    };
+    let waits = run_autopilot(&mut rig, 200, late, &[(PORT0, us(0)), (PORT1, us(100))]);
+    let behind_full: Vec<_> = waits
+        .iter()
+        .filter(|w| matches!(w.1, Some(TxKind::Poll(_))))
+        .collect();
+    assert!(behind_full.is_empty(), "{behind_full:?}");
+    let behind: Vec<_> = waits.iter().filter(|w| w.1.is_some()).collect();
+    assert!(
+        behind.is_empty(),
+        "{} of {}: {behind:?}",
+        behind.len(),
+        waits.len()
+    );
+}
+
+#[test]
+fn a_write_later_than_planned_moves_the_reply_deadline_and_nothing_talks_over_the_reply() {
+    let mut rig = Rig::online_with_force_on(full_polls_only(&[1]));
+    rig.settle();
+    rig.run(ms(50));
+    rig.settle();
+    rig.t = rig.m.poll_timeout().expect("a poll is due").max(rig.t);
+    rig.m.handle_timeout(rig.t);
+    let planned = rig.t;
+    let tx = rig.m.poll_transmit(planned).expect("a poll");
+    assert_eq!(tx.kind, TxKind::Poll(id(1)));
+    // The writing thread was preempted for 3 ms before the write.
+    let written = planned + ms(3);
+    rig.m.handle_written(written);
+    // The reply comes after the request really left, then late by 1.5 ms of turnaround.
+    let reply = rig.servo(1).handle(&tx.bytes).expect("an answer");
+    let reply_end = written + wire(tx.bytes.len()) + ms(1) + us(500) + wire(reply.len());
+    // Until the reply is in, nothing is written and no timeout is counted, whatever the time.
+    let mut t = planned;
+    while t < reply_end {
+        rig.m.handle_timeout(t);
+        assert!(
+            rig.m.poll_transmit(t).is_none(),
+            "talked over the reply at {:?}",
+            t - planned
+        );
+        t += us(100);
+    }
+    assert_eq!(rig.m.counters().timeouts, 0);
+    rig.m.handle_input(&reply, reply_end);
+    assert!(!rig.m.reply_pending());
+    assert_eq!(rig.m.counters().timeouts, 0);
+    assert_eq!(rig.m.counters().telemetry_replies, rig.m.counters().polls);
+}
+
+#[test]
+fn a_servo_whose_replies_are_garbled_is_degraded_never_lost() {
+    let mut rig = Rig::online_with_force(&[1, 2]);
+    // Every reply of servo 1 has a bad sum: counted as missed, but the servo is answering.
+    rig.servo(1).garble = true;
+    let c0 = *rig.m.counters();
+    let from = rig.events.len();
+    rig.run(ms(1000));
+    let c = rig.m.counters();
+    assert!(
+        c.bad_sums - c0.bad_sums >= 20,
+        "{} bad sums",
+        c.bad_sums - c0.bad_sums
+    );
+    assert!(!rig.events[from..].contains(&BusEvent::ServoLost { id: id(1) }));
+    assert_ne!(rig.health(1), Health::Offline);
+    assert!(rig.m.status().servo(id(1)).unwrap().timeouts >= 20);
+}
+
+#[test]
+fn a_temperature_flag_seen_in_a_short_reply_makes_the_next_poll_read_the_temperature() {
+    let mut rig = Rig::online_with_force(&[1]);
+    rig.run(ms(100));
+    rig.servo(1).temperature = 77;
+    rig.servo(1).flags = 0x20;
+    // Run until a short read shows the alarm flag.
+    let from = rig.log.len();
+    while !rig.events.contains(&BusEvent::TemperatureAlarm {
+        id: id(1),
+        on: true,
+    }) {
+        rig.run(ms(1));
+    }
+    let next = rig.log.len();
+    rig.run(ms(10));
+    let after: Vec<TxKind> = rig
+        .kinds_since(next)
+        .into_iter()
+        .filter(|k| *k != TxKind::Command)
+        .collect();
+    let before: Vec<TxKind> = rig.kinds_since(from)[..next - from].to_vec();
+    if before.last() == Some(&TxKind::MotionPoll(id(1))) {
+        assert_eq!(after.first(), Some(&TxKind::Poll(id(1))), "{after:?}");
+    }
+    assert_eq!(
+        rig.m
+            .status()
+            .servo(id(1))
+            .unwrap()
+            .telemetry
+            .unwrap()
+            .present_temperature
+            .0,
+        77
     );
 }

@@ -10,7 +10,9 @@ pub enum TxKind {
     Command,
     /// A telemetry poll (reply code 09: registers 42–59).
     Poll(ServoId),
-    /// A position-only read (registers 42–43), in bus time too short for a telemetry poll.
+    /// A position-and-current read (registers 42–49), the poll between two full ones.
+    MotionPoll(ServoId),
+    /// A position-only read (registers 42–43), in bus time too short for any other poll.
     PositionPoll(ServoId),
     /// A start-up read: registers 0–29 (identity, limits) or 30–41 (force, goal, max force).
     Init(ServoId),

@@ -35,7 +35,7 @@ pub use error::{DecodeError, ProtocolError};
 pub use id::{Destination, ServoId};
 pub use packet::{GoalEntry, LongPacket, ReplyRequest, ShortPacket};
 pub use registers::{Access, ForceMode, MemoryMap, Register};
-pub use reply::{ReplyFlags, ReturnPacket, Telemetry};
+pub use reply::{Motion, ReplyFlags, ReturnPacket, Telemetry};
 pub use units::{Celsius, Ma10, MmCenti, Ms10, Mv10, Percent, PositionLimits, Punch};
 
 /// First header byte of every host → servo packet.

@@ -151,11 +151,43 @@ impl Telemetry {
             present_voltage: Mv10(word(addr::PRESENT_VOLTAGE)?),
         })
     }
+
+    /// Decode what registers 42–49 hold (position, present time, load) from the bytes of
+    /// register 42 onwards (at least 8 are needed).
+    pub fn motion_from_registers(regs: &[u8]) -> Option<Motion> {
+        let word = |reg: u8| {
+            let i = usize::from(reg - addr::PRESENT_POSITION);
+            Some(u16::from_le_bytes([*regs.get(i)?, *regs.get(i + 1)?]))
+        };
+        Some(Motion {
+            present_position: MmCenti(word(addr::PRESENT_POSITION)? as i16),
+            present_time: Ms10(word(addr::PRESENT_TIME)?),
+            present_load: Ma10(word(addr::PRESENT_LOAD)?),
+        })
+    }
+}
+
+/// Registers 42–49: the part of the telemetry that changes with every move.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Motion {
+    pub present_position: MmCenti,
+    pub present_time: Ms10,
+    pub present_load: Ma10,
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn motion_decodes_position_time_and_load_from_registers_42_to_49() {
+        let regs = [0x4E, 0xFB, 0x0A, 0x00, 0x00, 0x00, 0x06, 0x00];
+        let m = Telemetry::motion_from_registers(&regs).unwrap();
+        assert_eq!(m.present_position, MmCenti(-1202));
+        assert_eq!(m.present_time, Ms10(10));
+        assert_eq!(m.present_load, Ma10(6));
+        assert_eq!(Telemetry::motion_from_registers(&regs[..7]), None);
+    }
 
     #[test]
     fn flags_decode_each_status_bit_and_ignore_bit_1() {
