@@ -273,7 +273,9 @@ pub async fn run(
         check_latency,
     } = opts;
     if check_latency {
+        // A run on the aircraft (the `run` command): its adapters and its memory.
         crate::deploy::check_buses(&cfg);
+        crate::bus::driver::lock_memory();
     }
     let mut links = vec![connect(&cfg.mavlink.connection).await?];
     if let Some(gcs) = &cfg.mavlink.gcs {

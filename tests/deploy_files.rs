@@ -101,3 +101,18 @@ fn the_udev_rule_sets_ftdi_latency_timers_to_1_ms() {
         assert!(rule.contains(chip));
     }
 }
+
+#[test]
+fn the_systemd_unit_grants_real_time_scheduling_at_the_bus_threads_priority_and_locked_memory() {
+    let unit = systemd_unit(Path::new(DEFAULT_BINARY), Path::new(DEFAULT_CONFIG));
+    let e = ini(&unit);
+    let priority = lj9da_bridge::bus::driver::REALTIME_PRIORITY.to_string();
+    assert_eq!(get(&e, "Service", "LimitRTPRIO"), [priority.as_str()]);
+    assert_eq!(get(&e, "Service", "LimitMEMLOCK"), ["infinity"]);
+    let caps = get(&e, "Service", "AmbientCapabilities");
+    assert_eq!(caps.len(), 1, "{unit}");
+    assert!(
+        caps[0].split_whitespace().any(|c| c == "CAP_SYS_NICE"),
+        "{unit}"
+    );
+}

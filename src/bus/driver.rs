@@ -54,6 +54,77 @@ const STATUS_REFRESH: Duration = Duration::from_millis(100);
 /// 115 200 bit/s.
 const TIMER_SLACK_NS: u64 = 1_000;
 
+/// The real-time priority the bus thread asks for (SCHED_FIFO): modest, above every normal
+/// thread (cameras, ROS, loggers), below the kernel's own real-time threads.
+pub const REALTIME_PRIORITY: i32 = 10;
+
+/// Ask for real-time scheduling (SCHED_FIFO at [`REALTIME_PRIORITY`]): the bus thread then runs
+/// the moment a reply's last byte or a goal's deadline comes, whatever else the computer runs.
+/// It sleeps between them (spinning at most [`SPIN_LIMIT`] for a reply's last bytes), so it
+/// never holds a core. Refused without CAP_SYS_NICE or an RLIMIT_RTPRIO of at least the
+/// priority (`lj9da-bridge deploy systemd` grants both).
+fn request_realtime() -> std::io::Result<()> {
+    use nix::libc;
+    let param = libc::sched_param {
+        sched_priority: REALTIME_PRIORITY,
+    };
+    // SAFETY: pid 0 is the calling thread; the kernel only reads `param`.
+    if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
+}
+
+/// Say once per process, at warning level, that the bus threads run without real-time
+/// scheduling, and what to grant.
+fn warn_not_realtime(error: &std::io::Error) {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        tracing::warn!(
+            "bus threads run without real-time scheduling (SCHED_FIFO {REALTIME_PRIORITY} refused: \
+             {error}): beside busy programs a goal may wait milliseconds for the CPU. Grant \
+             CAP_SYS_NICE or LimitRTPRIO={REALTIME_PRIORITY} (the unit of `lj9da-bridge deploy \
+             systemd` does)"
+        );
+    });
+}
+
+/// Lock the process's memory (current and future) into RAM, so that a page the bus threads
+/// touch is never fetched back from disk while a reply or a goal waits. Done only where the
+/// locked-memory limit is unlimited (root, or `LimitMEMLOCK=infinity` as in the unit of
+/// `lj9da-bridge deploy systemd`): under a finite limit, locking future pages would make the
+/// process's allocations fail once it is reached. Says once, at warning level, when it is not
+/// done.
+pub fn lock_memory() {
+    use nix::libc;
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes the limit into `limit`, a valid rlimit.
+    let unlimited = unsafe { libc::getrlimit(libc::RLIMIT_MEMLOCK, &mut limit) } == 0
+        && limit.rlim_cur == libc::RLIM_INFINITY;
+    if !unlimited {
+        tracing::warn!(
+            "memory not locked: the locked-memory limit is {} KiB, not unlimited; a page fault \
+             may delay a goal (set LimitMEMLOCK=infinity, as the unit of `lj9da-bridge deploy \
+             systemd` does)",
+            limit.rlim_cur / 1024
+        );
+        return;
+    }
+    // SAFETY: mlockall takes flags only.
+    if unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } != 0 {
+        tracing::warn!(
+            "memory not locked: {}; a page fault may delay a goal",
+            std::io::Error::last_os_error()
+        );
+    } else {
+        tracing::debug!("memory locked");
+    }
+}
+
 /// The time slice the bus thread asks the scheduler for (the shortest Linux grants).
 const SCHED_SLICE: Duration = Duration::from_micros(100);
 
@@ -510,8 +581,16 @@ impl Driver {
         if let Err(e) = nix::sys::prctl::set_timerslack(TIMER_SLACK_NS) {
             tracing::debug!(bus = %self.name, "timer slack stays at its default: {e}");
         }
-        if let Err(e) = request_short_slice() {
-            tracing::debug!(bus = %self.name, "scheduler slice stays at its default: {e}");
+        match request_realtime() {
+            Ok(()) => {
+                tracing::debug!(bus = %self.name, "bus thread runs at SCHED_FIFO {REALTIME_PRIORITY}")
+            }
+            Err(e) => {
+                warn_not_realtime(&e);
+                if let Err(e) = request_short_slice() {
+                    tracing::debug!(bus = %self.name, "scheduler slice stays at its default: {e}");
+                }
+            }
         }
         let (baud, reopen) = {
             let core = self.shared.core();

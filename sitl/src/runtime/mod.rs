@@ -60,6 +60,8 @@ struct Shared {
     host_baud_override: Mutex<Option<u32>>,
     stop: AtomicBool,
     waker: UnixStream,
+    /// The bus thread's scheduling: 0 not set yet, 1 real-time, 2 refused.
+    realtime: std::sync::atomic::AtomicU8,
 }
 
 impl Shared {
@@ -127,6 +129,7 @@ impl SimBus {
             host_baud_override: Mutex::new(None),
             stop: AtomicBool::new(false),
             waker,
+            realtime: std::sync::atomic::AtomicU8::new(0),
         });
         let thread_shared = Arc::clone(&shared);
         let thread = std::thread::Builder::new()
@@ -140,6 +143,15 @@ impl SimBus {
 
     /// The path a host should open: the symlink if one was asked for, else the pty slave (after
     /// `reconnect_port` without a symlink this changes). For TCP, the listening address.
+    /// Whether the simulated bus's thread runs with real-time scheduling: `None` until it has
+    /// started, then `Some(false)` where the system refused it.
+    pub fn realtime(&self) -> Option<bool> {
+        match self.shared.realtime.load(Ordering::SeqCst) {
+            0 => None,
+            state => Some(state == 1),
+        }
+    }
+
     pub fn path(&self) -> PathBuf {
         lock(&self.shared.path).clone()
     }
@@ -359,7 +371,13 @@ fn run_bus(shared: Arc<Shared>, mut link: Link, wake_reader: UnixStream) {
             0 as libc::c_ulong,
         );
     }
-    request_short_slice();
+    let realtime = request_realtime();
+    if !realtime {
+        request_short_slice();
+    }
+    shared
+        .realtime
+        .store(if realtime { 1 } else { 2 }, Ordering::SeqCst);
     let mut buffer = vec![0u8; 4096];
     let mut wake_buffer = [0u8; 64];
     while !shared.stop.load(Ordering::SeqCst) {
@@ -441,6 +459,26 @@ fn run_bus(shared: Arc<Shared>, mut link: Link, wake_reader: UnixStream) {
         }
     }
     link.close();
+}
+
+/// The real-time priority the simulated bus asks for (SCHED_FIFO): modest, above every normal
+/// thread, below the kernel's own real-time threads.
+pub const REALTIME_PRIORITY: i32 = 10;
+
+/// Ask for real-time scheduling (SCHED_FIFO at [`REALTIME_PRIORITY`]) so that the simulated
+/// servos answer on time beside busy programs; false where the system refuses it (no
+/// CAP_SYS_NICE, no RLIMIT_RTPRIO). The thread sleeps between bytes and spins only within
+/// 100 µs of one, so it never holds a core for long.
+fn request_realtime() -> bool {
+    let param = libc::sched_param {
+        sched_priority: REALTIME_PRIORITY,
+    };
+    // SAFETY: pid 0 is the calling thread; the kernel only reads `param`.
+    let result = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+    if result != 0 {
+        tracing::debug!(error = %io::Error::last_os_error(), "no real-time scheduling for the simulated bus");
+    }
+    result == 0
 }
 
 /// Ask Linux (≥ 6.12, EEVDF) to run the bus thread in 100 µs slices, so that when it wakes for a
