@@ -389,6 +389,7 @@ fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
             identity: Default::default(),
             consecutive_timeouts: 0,
             telemetry_count: 1,
+            answered: 1,
             timeouts: 0,
         }],
         counters: BusCounters::default(),

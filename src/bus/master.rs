@@ -239,6 +239,7 @@ impl BusMaster {
         let cfg = &self.cfg;
         let s = &mut self.servos[p.index];
         s.heard();
+        s.answered += 1;
         s.apply_flags(reply.flags, &mut events);
         match p.tx {
             Transaction::Identify | Transaction::Probe => {
@@ -261,7 +262,10 @@ impl BusMaster {
                     s.on_force(mode, &reply.data, now, cfg, &mut events);
                 }
             }
-            Transaction::Motion => s.store_motion(&reply.data, now),
+            Transaction::Motion => {
+                self.counters.telemetry_replies += 1;
+                s.store_motion(&reply.data, now);
+            }
             Transaction::Position => {
                 if let [lo, hi] = reply.data[..] {
                     s.store_position(crate::protocol::MmCenti(i16::from_le_bytes([lo, hi])), now);

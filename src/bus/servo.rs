@@ -78,6 +78,8 @@ pub(super) struct Servo {
     pub silent_since: Option<Instant>,
     pub timeouts: u64,
     pub telemetry_count: u64,
+    /// Requests answered with a good reply, of every kind.
+    pub answered: u64,
 
     pub identity: ServoIdentity,
 
@@ -134,6 +136,7 @@ impl Servo {
             silent_since: None,
             timeouts: 0,
             telemetry_count: 0,
+            answered: 0,
             identity: ServoIdentity::default(),
             telemetry: None,
             telemetry_at: None,
@@ -672,6 +675,7 @@ impl Servo {
             identity: self.identity,
             consecutive_timeouts: self.consecutive_timeouts,
             telemetry_count: self.telemetry_count,
+            answered: self.answered,
             timeouts: self.timeouts,
         }
     }

@@ -88,8 +88,11 @@ pub struct ServoStatus {
     pub identity: ServoIdentity,
     /// Replies missed in a row.
     pub consecutive_timeouts: u32,
-    /// Telemetry polls answered.
+    /// Full telemetry polls (registers 42–59) answered.
     pub telemetry_count: u64,
+    /// Requests answered with a good reply, of every kind: with `timeouts`, the share of
+    /// requests that went unanswered or garbled.
+    pub answered: u64,
     /// Replies missed in all.
     pub timeouts: u64,
 }
@@ -105,7 +108,7 @@ pub struct BusCounters {
     pub motion_polls: u64,
     /// Position-only reads written (bus time left before a goal, too short for a poll).
     pub position_polls: u64,
-    /// Telemetry replies received.
+    /// Replies to telemetry polls received (full, and position and current).
     pub telemetry_replies: u64,
     /// Start-up reads, probes, force writes and read-backs written.
     pub other_requests: u64,

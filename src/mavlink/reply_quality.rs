@@ -53,7 +53,7 @@ fn counts(status: &BusStatus) -> Vec<ServoCount> {
         .iter()
         .map(|s| ServoCount {
             id: s.id,
-            answered: s.telemetry_count,
+            answered: s.answered,
             missed: s.timeouts,
             answering: matches!(s.health, Health::Online | Health::Stale | Health::Starting),
         })
@@ -139,6 +139,7 @@ mod tests {
             identity: Default::default(),
             consecutive_timeouts: 0,
             telemetry_count: answered,
+            answered,
             timeouts: missed,
         }
     }
