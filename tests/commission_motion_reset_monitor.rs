@@ -39,7 +39,7 @@ async fn move_is_refused_while_force_is_off_and_writes_nothing() {
     .unwrap_err();
     assert!(error.is_refusal(), "{error}");
     assert!(error.to_string().contains("--force-on"), "{error}");
-    assert!(writes(&events).is_empty());
+    assert!(writes(&events, &mut link).await.is_empty());
     assert_eq!(bus.handle().snapshot(1).unwrap().force, Force::Off);
 }
 
@@ -192,7 +192,7 @@ async fn factory_reset_is_refused_while_another_servo_has_id_1() {
     let error = factory_reset(&mut link, id(4)).await.unwrap_err();
     assert!(matches!(error, CommissionError::Refused { .. }), "{error}");
     assert!(error.to_string().contains("ID 1"));
-    assert!(writes(&events).is_empty());
+    assert!(writes(&events, &mut link).await.is_empty());
     assert_eq!(handle.snapshot(4).unwrap().registers[4], 4);
 }
 
@@ -233,7 +233,10 @@ async fn monitor_takes_the_samples_asked_for() {
         table.contains("12.00 V") && table.contains("no answer"),
         "{table}"
     );
-    assert!(writes(&events).is_empty(), "monitor writes nothing");
+    assert!(
+        writes(&events, &mut link).await.is_empty(),
+        "monitor writes nothing"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
