@@ -243,18 +243,36 @@ async fn monitor_takes_the_samples_asked_for() {
 async fn monitor_stops_when_asked() {
     let bus = sim(&[1]);
     let mut link = link(&bus).await;
-    let taken = monitor(
-        &mut link,
-        &[id(1)],
-        MonitorOptions {
-            interval: Duration::from_millis(20),
-            count: None,
-            duration: None,
-        },
-        tokio::time::sleep(Duration::from_millis(150)),
-        |_, _| {},
+    // The stop is asked for as the third sample is handed out: the monitor must end there,
+    // before a fourth. Counting samples, not milliseconds, keeps a busy machine out of it.
+    let (ask_to_stop, asked) = tokio::sync::oneshot::channel::<()>();
+    let mut ask_to_stop = Some(ask_to_stop);
+    // With no count and no duration, a monitor that ignores the stop runs forever: fail
+    // instead. 10 s is thousands of 20 ms intervals, far beyond any scheduling delay.
+    let taken = tokio::time::timeout(
+        Duration::from_secs(10),
+        monitor(
+            &mut link,
+            &[id(1)],
+            MonitorOptions {
+                interval: Duration::from_millis(20),
+                count: None,
+                duration: None,
+            },
+            async {
+                let _ = asked.await;
+            },
+            |n, _| {
+                if n == 3
+                    && let Some(ask) = ask_to_stop.take()
+                {
+                    let _ = ask.send(());
+                }
+            },
+        ),
     )
     .await
+    .expect("the monitor did not stop within 10 s of being asked to")
     .unwrap();
-    assert!((1..=10).contains(&taken), "{taken}");
+    assert_eq!(taken, 3, "the stop was asked for at the third sample");
 }
