@@ -113,17 +113,24 @@ fn env_number(name: &str) -> Option<u64> {
     std::env::var(name).ok().and_then(|v| v.trim().parse().ok())
 }
 
-/// This process's resident set, KiB.
+/// This process's resident set, KiB. The memory check needs it: a /proc that cannot be read
+/// fails the soak here, rather than reading as 0 KiB and letting any growth pass.
 fn rss_kib() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmRSS:"))
-                .and_then(|l| l.split_whitespace().nth(1))
-                .and_then(|v| v.parse().ok())
+    const STATUS: &str = "/proc/self/status";
+    let status = std::fs::read_to_string(STATUS).unwrap_or_else(|error| {
+        panic!(
+            "cannot read {STATUS} ({error}): the soak's memory-growth check cannot be made \
+             (run it where /proc is mounted and readable)"
+        )
+    });
+    status
+        .lines()
+        .find(|l| l.starts_with("VmRSS:"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| {
+            panic!("no readable VmRSS line in {STATUS}: the memory-growth check cannot be made")
         })
-        .unwrap_or(0)
 }
 
 /// The PWM value (µs) for a position (0.01 mm, whole mm) under the default 920/1520/2120 law.
@@ -1437,6 +1444,11 @@ async fn fault_soak() {
         .iter()
         .map(|(l, k)| format!("{l}: {:.1} MiB", *k as f64 / 1024.0))
         .collect();
+    assert!(
+        soak.rss.len() >= 2,
+        "memory sampled {} time(s): the growth check needs a sample after warm-up and one at the end",
+        soak.rss.len()
+    );
     let first = soak.rss.first().map_or(0, |r| r.1);
     let last = soak.rss.last().map_or(0, |r| r.1);
     let peak = soak.rss.iter().map(|r| r.1).max().unwrap_or(0);
