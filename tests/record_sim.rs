@@ -75,13 +75,40 @@ async fn a_simulated_run_is_recorded_and_its_summary_matches_the_simulation() {
             record.goal(index, goal);
         }
     };
+    // The scenario's phases last at least as long as the summary's checks need (the 0.5 s
+    // soft start, then settled samples; a stall needs 0.5 s to be called one), and then until
+    // what they are about has really happened: a busy machine stretches them, never cuts them.
+    let at = |n: usize, centi: i16| {
+        move |s: &lj9da_bridge::bus::BusStatus| {
+            s.servos[n]
+                .telemetry
+                .is_some_and(|t| (t.present_position.0 - centi).abs() <= 4)
+        }
+    };
     command(5);
     tokio::time::sleep(Duration::from_millis(1200)).await;
+    wait_for(&bus, "both servos at +5 mm", |s| {
+        at(0, 500)(s) && at(1, 500)(s)
+    })
+    .await;
     // Servo 2's rod is blocked for the second move: it stalls.
     assert!(sim.handle().set_stalled(2, true));
     let second_goal_at = Instant::now();
     command(-5);
     tokio::time::sleep(Duration::from_millis(1500)).await;
+    let stalled = wait_for(&bus, "left at −5 mm, right stalled", |s| {
+        at(0, -500)(s) && s.servos[1].stalled
+    })
+    .await;
+    // The stall lasts long enough to be recorded as one (> 0.3 s): ten more polls of the
+    // blocked servo, and 0.5 s, after the bridge reported it.
+    let polls = stalled.servos[1].telemetry_count;
+    let reported = Instant::now();
+    wait_for(&bus, "ten polls of the stalled servo", |s| {
+        s.servos[1].telemetry_count >= polls + 10
+            && reported.elapsed() >= Duration::from_millis(500)
+    })
+    .await;
     let truth = sim.handle().snapshots();
 
     bus.shutdown(ShutdownForce::AsIs).await;
@@ -159,4 +186,25 @@ async fn a_simulated_run_is_recorded_and_its_summary_matches_the_simulation() {
         RecordBody::Event { servo: Some(1), text, .. } if text.contains("stalled")
     )));
     sim.shutdown();
+}
+
+/// Wait until the bus status satisfies `done`, checking every 20 ms; fail with `what` after
+/// 10 s, far beyond what any of these phases needs.
+async fn wait_for(
+    bus: &lj9da_bridge::bus::BusHandle,
+    what: &str,
+    done: impl Fn(&lj9da_bridge::bus::BusStatus) -> bool,
+) -> lj9da_bridge::bus::BusStatus {
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let status = bus.status();
+        if done(&status) {
+            return status;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "timed out waiting for {what}: {status:#?}"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
 }
