@@ -261,8 +261,48 @@ async fn an_overheating_servo_produces_one_warning_and_one_error() {
             v.servos[3].report.temperature_error
         })
         .await;
-    // Let a few more seconds of telemetry pass: the servo stays hot and latched.
-    tokio::time::sleep(SECS(2)).await;
+    // Both texts reach the ground station: the view can change before they have arrived.
+    chain
+        .gcs
+        .wait_for("the rudder's temperature alarm and overheat", SECS(10), |heard| {
+            let has = |word: &str| {
+                heard.iter().any(|(_, _, m)| {
+                    matches!(m, MavMessage::STATUSTEXT(s) if s.text.to_str().is_ok_and(|t| t.starts_with("rudder:") && t.contains(word)))
+                })
+            };
+            has("temperature alarm") && has("overheat")
+        })
+        .await;
+    // Then the servo stays hot and latched, and nothing is said twice. Judged over a window
+    // that really passed, however busy the machine: at least 2 s (as before) and at least 100
+    // polls of the rudder by the bridge (≈ 1.5 s of telemetry at its 60 Hz floor), then a
+    // message the bridge sent after the window, heard by the ground station.
+    let line = sim.subscribe();
+    let window = std::time::Instant::now();
+    let mut polls = 0;
+    while polls < 100 || window.elapsed() < SECS(2) {
+        assert!(
+            window.elapsed() < SECS(30),
+            "the rudder was polled only {polls} times in 30 s"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        polls += line
+            .try_iter()
+            .filter(|e| {
+                matches!(e, lj9da_sim::BusEvent::Packet(p)
+                    if matches!(&p.packet, lj9da_sim::HostPacket::Short(s) if s.id == 4))
+            })
+            .count();
+    }
+    let closed = std::time::Instant::now();
+    chain
+        .gcs
+        .wait_for(
+            "a message from the bridge after the window",
+            SECS(10),
+            |heard| heard.iter().any(|(at, _, _)| *at > closed),
+        )
+        .await;
     let texts: Vec<_> = chain
         .gcs
         .statustexts()

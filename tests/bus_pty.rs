@@ -14,7 +14,9 @@ use std::time::Duration;
 async fn servos_reach_their_goals_and_telemetry_is_published() {
     let ids = [1, 2, 3, 4];
     let sim = spawn_sim(sim_config(&ids, 115_200));
-    let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
+    let cfg = bus_config(&ids, BaudRate::B115200);
+    let stale_after = cfg.stale_after;
+    let bus = spawn_bus(cfg, sim.path());
     let st = every_servo_online(&bus).await;
     for s in &st.servos {
         assert_eq!(s.identity.model, Some(0x7510));
@@ -46,8 +48,21 @@ async fn servos_reach_their_goals_and_telemetry_is_published() {
         assert!((11.9..=12.1).contains(&t.present_voltage.volts()), "{t:?}");
         assert!(t.present_temperature.0 >= 20, "{t:?}");
         assert!(t.present_load.0 > 0, "{t:?}");
-        assert!(s.age.unwrap() < Duration::from_millis(200), "fresh: {s:?}");
+        // Fresh as the bridge defines it: younger than `stale_after` (what makes a servo Online
+        // rather than Stale), not a figure of our own that an idle machine happens to meet.
+        assert_eq!(s.health, lj9da_bridge::bus::Health::Online, "{s:?}");
+        assert!(s.age.unwrap() < stale_after, "fresh: {s:?}");
     }
+    // And it stays fresh: every servo is polled again (two more replies each), whatever the
+    // machine's load makes of the milliseconds between polls.
+    let counts: Vec<u64> = st.servos.iter().map(|s| s.telemetry_count).collect();
+    wait_status(&bus, "two more telemetry replies from every servo", |s| {
+        s.servos
+            .iter()
+            .zip(&counts)
+            .all(|(s, before)| s.telemetry_count >= before + 2)
+    })
+    .await;
     // A second, quick move: the long packet carries every servo.
     let events = sim.handle().subscribe();
     bus.set_goal(id(3), Goal::Position(MmCenti(-600)));
@@ -81,7 +96,13 @@ async fn the_line_is_never_talked_over_and_every_request_is_answered() {
     let ids = [1, 2, 3];
     let sim = spawn_sim(sim_config(&ids, 460_800));
     let bus = spawn_bus(bus_config(&ids, BaudRate::B460800), sim.path());
-    every_servo_online(&bus).await;
+    let st = every_servo_online(&bus).await;
+    let before: Vec<(u64, u64)> = st
+        .servos
+        .iter()
+        .map(|s| (s.telemetry_count, s.timeouts))
+        .collect();
+    let events = sim.handle().subscribe();
     // Goals at ~500 Hz for a second while telemetry is polled in the gaps.
     for k in 0..500i16 {
         for n in ids {
@@ -96,11 +117,31 @@ async fn the_line_is_never_talked_over_and_every_request_is_answered() {
     .await;
     let stats = sim.handle().stats();
     let c = st.counters;
-    assert_eq!(stats.collisions, 0, "{stats:?} {c:?}");
-    assert_eq!(c.timeouts, 0, "{c:?}");
-    assert_eq!(c.bad_sums, 0);
+    assert_line_kept(&stats, &st, &talk_overs(&events));
     assert!(c.command_frames > 100, "{c:?}");
-    assert!(c.telemetry_replies > 300, "{c:?}");
+    // Telemetry was polled in the gaps of the goal stream: counted per servo, not per second,
+    // so a longer stream on a busy machine is no excuse and no threat. Where the simulator
+    // kept time every poll is answered: at least 20 replies per servo during the 500 goal
+    // messages (≈ 90 per servo on an idle machine). Where it ran late, its servos answer late
+    // or not at all and the bridge's answer to missing replies is not this test's subject:
+    // every servo must still have been polled during the stream.
+    for (s, (replies, timeouts)) in st.servos.iter().zip(&before) {
+        let answered = s.telemetry_count - replies;
+        let polled = answered + (s.timeouts - timeouts);
+        if stats.handed_late == 0 {
+            assert!(
+                answered >= 20,
+                "servo {}: {answered} telemetry replies during 500 goal messages: {c:?}",
+                s.id
+            );
+        } else {
+            assert!(
+                polled >= 1,
+                "servo {}: never polled during 500 goal messages: {c:?}",
+                s.id
+            );
+        }
+    }
     assert_eq!(c.goals_received, 1500);
     assert_eq!(
         c.goals_received,
@@ -119,23 +160,31 @@ async fn the_goals_of_one_message_leave_in_one_long_packet() {
     cfg.telemetry_min_interval = Duration::from_secs(5);
     cfg.verify_interval = Duration::from_secs(5);
     cfg.stale_after = Duration::from_secs(20);
+    let cfg_telemetry_interval = cfg.telemetry_min_interval;
     let bus = spawn_bus(cfg, sim.path());
     every_servo_online(&bus).await;
     bus.set_goals(ids.map(|n| (id(n), Goal::Position(MmCenti(0)))));
     wait_status(&bus, "force on", all_online_with_force).await;
-    tokio::time::sleep(Duration::from_millis(100)).await;
     let events = sim.handle().subscribe();
     bus.set_goals(ids.map(|n| (id(n), Goal::Position(MmCenti(10 * i16::from(n))))));
-    tokio::time::sleep(Duration::from_millis(200)).await;
-    let longs: Vec<Vec<(u8, i16)>> = events
-        .try_iter()
-        .filter_map(|e| match e {
-            SimEvent::Packet(p) if matches!(p.packet, HostPacket::Long(_)) => {
-                Some(p.packet.goal_positions())
+    // Every long packet from the goals on, until the bus master's next short packet (its next
+    // poll, within `telemetry_min_interval`): a goal left behind by a split message would have
+    // gone out before it. Waiting for that packet, rather than a fixed 200 ms, means the window
+    // has really passed however late the simulator reads the line.
+    let deadline = std::time::Instant::now() + cfg_telemetry_interval + PATIENCE;
+    let mut longs: Vec<Vec<(u8, i16)>> = Vec::new();
+    loop {
+        let event = events
+            .recv_timeout(deadline.saturating_duration_since(std::time::Instant::now()))
+            .unwrap_or_else(|_| panic!("no poll after the goals; long packets so far: {longs:?}"));
+        if let SimEvent::Packet(p) = event {
+            match p.packet {
+                HostPacket::Long(_) => longs.push(p.packet.goal_positions()),
+                HostPacket::Short(_) if !longs.is_empty() => break,
+                HostPacket::Short(_) => {}
             }
-            _ => None,
-        })
-        .collect();
+        }
+    }
     assert_eq!(longs, vec![vec![(1, 10), (2, 20), (3, 30), (4, 40)]]);
     bus.shutdown(ShutdownForce::AsIs).await;
 }

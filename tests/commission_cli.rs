@@ -3,8 +3,9 @@
 
 mod commission_common;
 
-use commission_common::{packets, sim, writes};
+use commission_common::{packets_after_exit, sim, writes_after_exit};
 use std::io::Write;
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
 fn bridge(args: &[&str], stdin: Option<&str>) -> Output {
@@ -50,7 +51,10 @@ fn a_limit_beyond_25_mm_exits_2_with_the_reason_and_nothing_reaches_the_bus() {
         err.contains("25.01") && err.contains("±25.00 mm") && err.contains("nothing was written"),
         "{err}"
     );
-    assert!(packets(&events).is_empty(), "not even a read");
+    assert!(
+        packets_after_exit(&events, Path::new(port)).is_empty(),
+        "not even a read"
+    );
     let servo = bus.handle().snapshot(1).unwrap();
     assert_eq!(&servo.registers[8..10], &[0xC4, 0x09]);
     assert_eq!(&servo.registers[28..30], &[0xC4, 0x09]);
@@ -76,7 +80,7 @@ fn read_only_registers_unknown_bauds_and_bad_ids_exit_2() {
     let out = bridge(&["scan", "--port", port, "--baud", "921600"], None);
     assert_eq!(out.status.code(), Some(2));
     assert!(text(&out.stderr).contains("921600"));
-    assert!(packets(&events).is_empty());
+    assert!(packets_after_exit(&events, Path::new(port)).is_empty());
 }
 
 #[test]
@@ -91,7 +95,7 @@ fn an_id_already_on_the_bus_exits_2_and_writes_nothing() {
     );
     assert_eq!(out.status.code(), Some(2));
     assert!(text(&out.stderr).contains("ID 2 is already taken"));
-    assert!(writes(&events).is_empty());
+    assert!(writes_after_exit(&events, Path::new(port)).is_empty());
     assert_eq!(bus.handle().snapshot(1).unwrap().registers[4], 1);
 }
 
@@ -210,7 +214,7 @@ fn factory_reset_asks_for_confirmation() {
     assert_eq!(out.status.code(), Some(2));
     assert!(text(&out.stderr).contains("type the servo id"));
     assert!(text(&out.stderr).contains("not confirmed"));
-    assert!(writes(&events).is_empty());
+    assert!(writes_after_exit(&events, Path::new(port)).is_empty());
     assert_eq!(handle.snapshot(3).unwrap().registers[4], 3);
 
     let out = bridge(&["factory-reset", "--port", port, "--id", "3"], Some("3\n"));

@@ -39,7 +39,7 @@ async fn move_is_refused_while_force_is_off_and_writes_nothing() {
     .unwrap_err();
     assert!(error.is_refusal(), "{error}");
     assert!(error.to_string().contains("--force-on"), "{error}");
-    assert!(writes(&events).is_empty());
+    assert!(writes(&events, &mut link).await.is_empty());
     assert_eq!(bus.handle().snapshot(1).unwrap().force, Force::Off);
 }
 
@@ -192,7 +192,7 @@ async fn factory_reset_is_refused_while_another_servo_has_id_1() {
     let error = factory_reset(&mut link, id(4)).await.unwrap_err();
     assert!(matches!(error, CommissionError::Refused { .. }), "{error}");
     assert!(error.to_string().contains("ID 1"));
-    assert!(writes(&events).is_empty());
+    assert!(writes(&events, &mut link).await.is_empty());
     assert_eq!(handle.snapshot(4).unwrap().registers[4], 4);
 }
 
@@ -233,25 +233,46 @@ async fn monitor_takes_the_samples_asked_for() {
         table.contains("12.00 V") && table.contains("no answer"),
         "{table}"
     );
-    assert!(writes(&events).is_empty(), "monitor writes nothing");
+    assert!(
+        writes(&events, &mut link).await.is_empty(),
+        "monitor writes nothing"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn monitor_stops_when_asked() {
     let bus = sim(&[1]);
     let mut link = link(&bus).await;
-    let taken = monitor(
-        &mut link,
-        &[id(1)],
-        MonitorOptions {
-            interval: Duration::from_millis(20),
-            count: None,
-            duration: None,
-        },
-        tokio::time::sleep(Duration::from_millis(150)),
-        |_, _| {},
+    // The stop is asked for as the third sample is handed out: the monitor must end there,
+    // before a fourth. Counting samples, not milliseconds, keeps a busy machine out of it.
+    let (ask_to_stop, asked) = tokio::sync::oneshot::channel::<()>();
+    let mut ask_to_stop = Some(ask_to_stop);
+    // With no count and no duration, a monitor that ignores the stop runs forever: fail
+    // instead. 10 s is thousands of 20 ms intervals, far beyond any scheduling delay.
+    let taken = tokio::time::timeout(
+        Duration::from_secs(10),
+        monitor(
+            &mut link,
+            &[id(1)],
+            MonitorOptions {
+                interval: Duration::from_millis(20),
+                count: None,
+                duration: None,
+            },
+            async {
+                let _ = asked.await;
+            },
+            |n, _| {
+                if n == 3
+                    && let Some(ask) = ask_to_stop.take()
+                {
+                    let _ = ask.send(());
+                }
+            },
+        ),
     )
     .await
+    .expect("the monitor did not stop within 10 s of being asked to")
     .unwrap();
-    assert!((1..=10).contains(&taken), "{taken}");
+    assert_eq!(taken, 3, "the stop was asked for at the third sample");
 }

@@ -147,7 +147,8 @@ async fn an_id_change_with_save_survives_power_off() {
     assert!(report.saved);
     assert_eq!(handle.snapshot(5).unwrap().flash[0], 5);
     // The manual's order: write the ID, then flash, then reboot, each its own packet.
-    let order: Vec<String> = writes(&events)
+    let order: Vec<String> = writes(&events, &mut link)
+        .await
         .iter()
         .map(|p| match p {
             HostPacket::Short(s) => match s.form() {
@@ -275,7 +276,10 @@ async fn an_id_already_on_the_bus_is_refused_and_nothing_is_written() {
         "{error}"
     );
     assert!(error.is_refusal());
-    assert!(writes(&events).is_empty(), "no write reached the bus");
+    assert!(
+        writes(&events, &mut link).await.is_empty(),
+        "no write reached the bus"
+    );
     let after = handle.snapshot(1).unwrap();
     assert_eq!(before.registers[..42], after.registers[..42]);
     assert_eq!(before.flash, after.flash);
@@ -290,7 +294,7 @@ async fn a_servo_that_does_not_answer_gets_nothing_written() {
         .await
         .unwrap_err();
     assert!(matches!(error, CommissionError::NoServo { .. }), "{error}");
-    assert!(writes(&events).is_empty());
+    assert!(writes(&events, &mut link).await.is_empty());
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -307,7 +311,7 @@ async fn a_device_that_is_not_an_lj9da41_is_refused() {
         matches!(error, CommissionError::NotLj9da41 { model: 0x1234, .. }),
         "{error}"
     );
-    assert!(writes(&events).is_empty());
+    assert!(writes(&events, &mut link).await.is_empty());
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -328,6 +332,6 @@ async fn reversing_is_refused_while_force_is_on() {
         .unwrap_err();
     assert!(error.is_refusal(), "{error}");
     assert!(error.to_string().contains("force off first"), "{error}");
-    assert!(writes(&events).is_empty());
+    assert!(writes(&events, &mut link).await.is_empty());
     assert_eq!(handle.snapshot(1).unwrap().registers[5], 0);
 }

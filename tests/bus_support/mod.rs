@@ -7,6 +7,7 @@
 use lj9da_bridge::bus::{BusConfig, BusEvent, BusHandle, BusStatus, Goal, Health, ServoSetup};
 use lj9da_bridge::protocol::{BaudRate, MmCenti, ServoId};
 use lj9da_sim::{SimBus, SimConfig};
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
@@ -118,4 +119,59 @@ pub fn all_online_with_force(status: &BusStatus) -> bool {
         s.health == lj9da_bridge::bus::Health::Online
             && s.force == lj9da_bridge::bus::ForceState::On
     })
+}
+
+/// Talk-overs the simulated line saw among `events`, by the servo whose reply was talked over.
+pub fn talk_overs(events: &std::sync::mpsc::Receiver<lj9da_sim::BusEvent>) -> BTreeMap<u8, u64> {
+    let mut by_servo = BTreeMap::new();
+    for event in events.try_iter() {
+        if let lj9da_sim::BusEvent::Collision { id, .. } = event {
+            *by_servo.entry(id).or_default() += 1;
+        }
+    }
+    by_servo
+}
+
+/// The line was never talked over and every request was answered with a good reply, or, where
+/// the simulator says it ran late, the bridge only wrote over replies it had already given up
+/// on (and its bad sums are those garbled replies).
+///
+/// When the simulator's thread runs late (a busy machine; it counts each late hand-over in
+/// `handed_late`), its servos answer later than their wire time, some after the bridge's reply
+/// deadline. The bridge then counts a timeout and carries on, and its next packet may meet the
+/// late reply in the model: a talk-over of a reply it had already counted as missing. What it
+/// must never do is write over a reply it is still waiting for, so each talked-over reply of a
+/// servo must be one of that servo's timeouts.
+pub fn assert_line_kept(
+    stats: &lj9da_sim::BusStats,
+    status: &BusStatus,
+    talk_overs: &BTreeMap<u8, u64>,
+) {
+    let c = &status.counters;
+    if stats.handed_late == 0 {
+        assert_eq!(stats.collisions, 0, "{stats:?} {c:?}");
+        assert_eq!(c.timeouts, 0, "{c:?}");
+        assert_eq!(c.bad_sums, 0, "{c:?}");
+        return;
+    }
+    // A talked-over reply reaches the bridge garbled: its bad sums can be those, no more.
+    assert!(
+        c.bad_sums <= stats.collisions,
+        "{} bad sums but only {} talk-overs to explain them\n{stats:?}\n{c:?}",
+        c.bad_sums,
+        stats.collisions
+    );
+    for s in &status.servos {
+        let over = talk_overs.get(&s.id.get()).copied().unwrap_or(0);
+        assert!(
+            over <= s.timeouts,
+            "servo {}: {over} replies talked over but only {} given up on\n{stats:?}\n{c:?}",
+            s.id,
+            s.timeouts
+        );
+    }
+    println!(
+        "the simulator ran late {} times: {} talk-overs, all of replies given up on; {} timeouts",
+        stats.handed_late, stats.collisions, c.timeouts
+    );
 }

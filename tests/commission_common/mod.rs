@@ -3,11 +3,12 @@
 #![allow(dead_code)]
 
 use lj9da_bridge::commission::Link;
-use lj9da_bridge::protocol::{BaudRate, ServoId};
+use lj9da_bridge::protocol::{BaudRate, ReplyRequest, ServoId, ShortPacket};
 use lj9da_sim::protocol::host_packet::ShortForm;
 use lj9da_sim::{BusEvent, HostPacket, SimBus, SimConfig};
+use std::path::Path;
 use std::sync::mpsc::Receiver;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// A simulated bus with servos `ids`, all at 115 200 bit/s.
 pub fn sim(ids: &[u8]) -> SimBus {
@@ -46,20 +47,77 @@ pub fn is_write(packet: &HostPacket) -> bool {
     }
 }
 
-/// Every host packet the bus has seen since `events` was subscribed (after letting the bus
-/// thread catch up).
-pub fn packets(events: &Receiver<BusEvent>) -> Vec<HostPacket> {
-    std::thread::sleep(Duration::from_millis(60));
-    events
-        .try_iter()
-        .filter_map(|e| match e {
-            BusEvent::Packet(p) => Some(p.packet),
-            _ => None,
-        })
-        .collect()
+/// How long the end marker may take to reach the simulated bus: it is one 8-byte packet, about
+/// 0.7 ms of wire time, so only a stalled machine gets near this; waiting longer would only hide
+/// a hang.
+const MARKER_DEADLINE: Duration = Duration::from_secs(10);
+
+/// The packet that closes a window of observation: a request to ID 127 for no reply (flag 0,
+/// count 0). No commissioning command sends it (scans ask for an ACK), and it is not a write.
+fn end_marker() -> ShortPacket {
+    ShortPacket::request(id(127), ReplyRequest::None)
+}
+
+/// Every host packet the bus saw since `events` was subscribed, up to an end marker sent now
+/// through `link`. The simulator handles the line's bytes in order, so once the marker has
+/// arrived every packet sent before it has too: nothing is missed however late the simulator's
+/// thread runs, and "nothing written" is judged over a window that really ended.
+pub async fn packets(events: &Receiver<BusEvent>, link: &mut Link) -> Vec<HostPacket> {
+    link.send(&end_marker())
+        .await
+        .expect("the end marker is sent");
+    packets_until_marker(events)
+}
+
+/// [`packets`] after a command run in another process: that process has exited and closed the
+/// port, so the marker is sent through a link of our own.
+pub fn packets_after_exit(events: &Receiver<BusEvent>, port: &Path) -> Vec<HostPacket> {
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("a runtime for the end marker");
+    runtime.block_on(async {
+        let mut link = Link::open(port, BaudRate::B115200)
+            .await
+            .expect("the port is free again once the command has exited");
+        link.send(&end_marker())
+            .await
+            .expect("the end marker is sent");
+    });
+    packets_until_marker(events)
+}
+
+fn packets_until_marker(events: &Receiver<BusEvent>) -> Vec<HostPacket> {
+    let marker = end_marker().to_bytes();
+    let deadline = Instant::now() + MARKER_DEADLINE;
+    let mut seen = Vec::new();
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match events.recv_timeout(left) {
+            Ok(BusEvent::Packet(p)) if p.bytes == marker => return seen,
+            Ok(BusEvent::Packet(p)) => seen.push(p.packet),
+            Ok(_) => {}
+            Err(error) => panic!(
+                "the end marker {marker:02X?} did not reach the simulated bus within \
+                 {MARKER_DEADLINE:?} ({error}); packets seen before it: {seen:?}"
+            ),
+        }
+    }
 }
 
 /// The writing packets among [`packets`].
-pub fn writes(events: &Receiver<BusEvent>) -> Vec<HostPacket> {
-    packets(events).into_iter().filter(is_write).collect()
+pub async fn writes(events: &Receiver<BusEvent>, link: &mut Link) -> Vec<HostPacket> {
+    packets(events, link)
+        .await
+        .into_iter()
+        .filter(is_write)
+        .collect()
+}
+
+/// The writing packets among [`packets_after_exit`].
+pub fn writes_after_exit(events: &Receiver<BusEvent>, port: &Path) -> Vec<HostPacket> {
+    packets_after_exit(events, port)
+        .into_iter()
+        .filter(is_write)
+        .collect()
 }
