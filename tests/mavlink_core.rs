@@ -296,6 +296,17 @@ fn failsafe_is_entered_after_the_timeout_and_left_on_the_next_output() {
         &outputs(0, &[(1, 1568)]),
         t0 + Duration::from_secs(4),
     );
+    assert!(!c.servo_in_failsafe(0));
+    assert!(
+        c.servo_in_failsafe(1),
+        "channel 18 is on port 1, which has not come back yet"
+    );
+    c.handle_message(
+        0,
+        &header(AP),
+        &outputs(1, &[(2, 1520)]),
+        t0 + Duration::from_secs(4),
+    );
     assert!(!c.in_failsafe());
     assert!(commands(&mut c).contains(&(0, Goal::Position(MmCenti(200)))));
     let texts = statustexts(&messages(&mut c));
@@ -305,6 +316,96 @@ fn failsafe_is_entered_after_the_timeout_and_left_on_the_next_output() {
             MavSeverity::MAV_SEVERITY_NOTICE,
             "LJ9DA failsafe cleared".to_string()
         )]
+    );
+}
+
+#[test]
+fn failsafe_is_per_servo_kept_only_by_the_messages_that_carry_its_channel() {
+    // PX4 streams SERVO_OUTPUT_RAW port 0 only: channels 1–16 arrive at 50 Hz, the aileron on
+    // channel 18 never does. Port 0 must not keep the aileron's failsafe at bay.
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    messages(&mut c);
+    let mut texts = Vec::new();
+    let mut got = Vec::new();
+    for i in 1..=200u64 {
+        let t = t0 + Duration::from_millis(20 * i);
+        c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), t);
+        c.handle_timeout(t, &[]);
+        got.extend(commands(&mut c));
+        texts.extend(statustexts(&messages(&mut c)));
+        if t < t0 + Duration::from_millis(500) {
+            assert!(!c.in_failsafe(), "at {i}");
+        }
+    }
+    assert!(c.servo_in_failsafe(1), "channel 18 missing for 4 s");
+    assert!(!c.servo_in_failsafe(0) && !c.servo_in_failsafe(2));
+    assert!(c.in_failsafe());
+    assert_eq!(
+        got,
+        vec![(1, Goal::Position(MmCenti(500)))],
+        "only the aileron on channel 18 takes its failsafe action (5 mm)"
+    );
+    assert_eq!(
+        texts,
+        vec![(
+            MavSeverity::MAV_SEVERITY_WARNING,
+            "aileron_right: failsafe, no ch18 for 500 ms".to_string()
+        )],
+        "announced once"
+    );
+    // Port 1 carries channel 18: the aileron follows it again, and the operator is told.
+    let t = t0 + Duration::from_millis(4010);
+    c.handle_message(0, &header(AP), &outputs(1, &[(2, 1544)]), t);
+    assert!(!c.in_failsafe());
+    assert_eq!(commands(&mut c), vec![(1, Goal::Position(MmCenti(-100)))]);
+    assert_eq!(
+        statustexts(&messages(&mut c)),
+        vec![(
+            MavSeverity::MAV_SEVERITY_NOTICE,
+            "aileron_right: ch18 back, failsafe cleared".to_string()
+        )]
+    );
+    // Port 1 stops again while port 0 goes on: failsafe again after the timeout.
+    let mut t = t;
+    for _ in 0..30 {
+        t += Duration::from_millis(20);
+        c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), t);
+        c.handle_timeout(t, &[]);
+    }
+    assert!(c.servo_in_failsafe(1));
+    assert_eq!(commands(&mut c), vec![(1, Goal::Position(MmCenti(500)))]);
+}
+
+#[test]
+fn after_the_streams_failsafe_a_channel_that_does_not_return_is_announced() {
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    c.handle_message(0, &header(AP), &outputs(1, &[(2, 1520)]), t0);
+    commands(&mut c);
+    messages(&mut c);
+    c.handle_timeout(t0 + Duration::from_millis(500), &[]);
+    assert!(c.servo_in_failsafe(1));
+    messages(&mut c);
+    // Only port 0 comes back: the aileron stays in failsafe and is announced once.
+    let back = t0 + Duration::from_secs(2);
+    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), back);
+    assert!(c.servo_in_failsafe(1) && !c.servo_in_failsafe(0));
+    assert!(c.poll_timeout() <= back + Duration::from_millis(500));
+    c.handle_message(
+        0,
+        &header(AP),
+        &outputs(0, &[(1, 1520)]),
+        back + Duration::from_millis(400),
+    );
+    c.handle_timeout(back + Duration::from_millis(500), &[]);
+    let texts = statustexts(&messages(&mut c));
+    assert!(
+        texts.contains(&(
+            MavSeverity::MAV_SEVERITY_WARNING,
+            "aileron_right: failsafe, no ch18 for 500 ms".to_string()
+        )),
+        "{texts:?}"
     );
 }
 

@@ -49,6 +49,7 @@ mod raw;
 pub mod record;
 pub mod servo;
 mod table;
+pub mod warnings;
 
 pub use bridge::{BridgeSection, ExitAction};
 pub use bus::BusSection;
@@ -120,6 +121,11 @@ impl Config {
     /// travel, failsafe, max force and goal time.
     pub fn resolved_table(&self) -> String {
         table::resolved_table(self)
+    }
+
+    /// What `check` warns about: valid, but not what the author expects (see [`warnings`]).
+    pub fn warnings(&self) -> Vec<String> {
+        warnings::warnings(self)
     }
 
     fn from_raw(raw: &RawFile, doc: Doc<'_>) -> Result<Config, ConfigError> {

@@ -9,8 +9,13 @@
 //!   value that means "no output" makes the servo hold.
 //! - The output stream is requested with MAV_CMD_SET_MESSAGE_INTERVAL until it arrives; a
 //!   denied rate is retried lower, and the user is told which parameter limits it.
-//! - No output message for the failsafe timeout: each servo takes its failsafe action; the
-//!   first output message ends it. Both are announced.
+//! - Failsafe is per servo, kept by the messages that carry its channel (SERVO_OUTPUT_RAW
+//!   port 0 carries channels 1–16, port 1 channels 17–32; ACTUATOR_OUTPUT_STATUS the channels
+//!   it marks active). No output message at all for the failsafe timeout: every servo takes its
+//!   failsafe action, announced once for the bridge; the first output message ends it for the
+//!   servos it carries. Output messages that keep coming without a servo's channel for the
+//!   timeout: that servo takes its failsafe action, announced once for the servo, until a
+//!   message carries its channel again.
 //! - HEARTBEAT at 1 Hz, servo telemetry at the configured rate, STATUSTEXT once per event.
 
 use super::health::{BridgeEvent, ServoReport};
@@ -55,6 +60,13 @@ struct ServoSlot {
     /// until the autopilot's own output for the channel changes.
     override_latch: Option<Option<u16>>,
     last_command: Option<Goal>,
+    /// When a message last carried this servo's channel, or when the watch for it began (the
+    /// first output message, or the stream's return after a failsafe).
+    carried_at: Option<Instant>,
+    /// The servo has taken its failsafe action and not yet had its channel back.
+    failsafe: bool,
+    /// Its channel's absence has been announced (once per absence).
+    missing_announced: bool,
 }
 
 /// See the module docs.
@@ -68,7 +80,8 @@ pub struct BridgeCore {
     /// Latest value of every channel 1–32 from the autopilot.
     channels: [Option<u16>; 33],
     last_output_at: Option<Instant>,
-    failsafe: bool,
+    /// No output message at all for the failsafe timeout.
+    stream_failsafe: bool,
     /// The stream runs as asked: the autopilot accepted the rate, or it arrives at ≥ 70 % of it.
     stream_ok: bool,
     /// Output messages counted since `rate_window_start`, to measure the stream's rate.
@@ -93,6 +106,9 @@ impl BridgeCore {
                 channel: s.channel,
                 override_latch: None,
                 last_command: None,
+                carried_at: None,
+                failsafe: false,
+                missing_announced: false,
             })
             .collect();
         Self {
@@ -107,7 +123,7 @@ impl BridgeCore {
             started: now,
             channels: [None; 33],
             last_output_at: None,
-            failsafe: false,
+            stream_failsafe: false,
             stream_ok: false,
             rate_window: (now, 0),
             next_stream_request: now,
@@ -134,8 +150,14 @@ impl BridgeCore {
         self.autopilot
     }
 
+    /// Some servo is in failsafe (the whole stream is missing, or its channel is).
     pub fn in_failsafe(&self) -> bool {
-        self.failsafe
+        self.servos.iter().any(|s| s.failsafe)
+    }
+
+    /// Servo `servo` (mapping order) is in failsafe.
+    pub fn servo_in_failsafe(&self, servo: usize) -> bool {
+        self.servos.get(servo).is_some_and(|s| s.failsafe)
     }
 
     /// The output rate being asked for now (lower than configured after a denial).
@@ -205,10 +227,12 @@ impl BridgeCore {
     fn handle_outputs(&mut self, values: &ChannelValues, now: Instant) {
         self.last_output_at = Some(now);
         self.measure_rate(now);
-        if self.failsafe {
-            self.failsafe = false;
+        let stream_back = self.stream_failsafe;
+        if stream_back {
+            self.stream_failsafe = false;
             self.event(BridgeEvent::FailsafeLeft, now);
         }
+        self.keep_servo_failsafes(values, stream_back, now);
         for (channel, us) in values.iter() {
             if let Some(slot) = self.channels.get_mut(usize::from(channel)) {
                 *slot = Some(us);
@@ -230,6 +254,26 @@ impl BridgeCore {
                 None => Goal::Hold,
             };
             self.command(i, command);
+        }
+    }
+
+    /// The servos whose channel `values` carries leave their failsafe; the watch for the
+    /// others begins now if it has not begun, or begins again after the stream's failsafe.
+    fn keep_servo_failsafes(&mut self, values: &ChannelValues, stream_back: bool, now: Instant) {
+        for i in 0..self.servos.len() {
+            let slot = &mut self.servos[i];
+            let channel = slot.channel;
+            if values.get(channel).is_none() {
+                if slot.carried_at.is_none() || stream_back {
+                    slot.carried_at = Some(now);
+                }
+                continue;
+            }
+            slot.carried_at = Some(now);
+            slot.failsafe = false;
+            if std::mem::take(&mut slot.missing_announced) {
+                self.event(BridgeEvent::ChannelBack { servo: i, channel }, now);
+            }
         }
     }
 
@@ -386,7 +430,9 @@ impl BridgeCore {
             return;
         }
         let name = match event {
-            BridgeEvent::Servo { servo, .. } => self
+            BridgeEvent::Servo { servo, .. }
+            | BridgeEvent::ChannelMissing { servo, .. }
+            | BridgeEvent::ChannelBack { servo, .. } => self
                 .cfg
                 .servos
                 .get(*servo)
@@ -420,7 +466,7 @@ impl BridgeCore {
         }
         if now >= self.next_heartbeat {
             self.next_heartbeat = now + HEARTBEAT_PERIOD;
-            let status = telemetry::system_status(reports, self.failsafe);
+            let status = telemetry::system_status(reports, self.in_failsafe());
             self.outgoing.push_back(Outgoing {
                 message: telemetry::heartbeat(status),
                 link: None,
@@ -480,29 +526,66 @@ impl BridgeCore {
         });
     }
 
+    fn failsafe_timeout(&self) -> Duration {
+        Duration::from_millis(u64::from(self.cfg.mavlink.failsafe_timeout_ms))
+    }
+
     fn check_failsafe(&mut self, now: Instant) {
         let Some(last) = self.last_output_at else {
             return;
         };
-        let timeout = Duration::from_millis(u64::from(self.cfg.mavlink.failsafe_timeout_ms));
-        if self.failsafe || now.duration_since(last) < timeout {
+        let timeout = self.failsafe_timeout();
+        let timeout_ms = self.cfg.mavlink.failsafe_timeout_ms;
+        if self.stream_failsafe {
             return;
         }
-        self.failsafe = true;
-        // The autopilot may have restarted and forgotten the rate: ask again until it runs.
-        self.stream_ok = false;
-        self.next_stream_request = now;
-        for i in 0..self.servos.len() {
-            let command = match self.cfg.servos[i].failsafe {
-                FailsafeAction::Hold => Goal::Hold,
-                FailsafeAction::Off => Goal::Off,
-                FailsafeAction::Brake => Goal::Brake,
-                FailsafeAction::Position(p) => Goal::Position(p),
-            };
-            self.command(i, command);
+        if now.duration_since(last) >= timeout {
+            self.stream_failsafe = true;
+            // The autopilot may have restarted and forgotten the rate: ask again until it runs.
+            self.stream_ok = false;
+            self.next_stream_request = now;
+            for i in 0..self.servos.len() {
+                self.enter_servo_failsafe(i);
+            }
+            self.event(BridgeEvent::FailsafeEntered { timeout_ms }, now);
+            return;
         }
-        let timeout_ms = self.cfg.mavlink.failsafe_timeout_ms;
-        self.event(BridgeEvent::FailsafeEntered { timeout_ms }, now);
+        for i in 0..self.servos.len() {
+            let slot = &self.servos[i];
+            let missing = slot
+                .carried_at
+                .is_some_and(|at| now.duration_since(at) >= timeout);
+            if !missing || slot.missing_announced {
+                continue;
+            }
+            let channel = slot.channel;
+            self.servos[i].missing_announced = true;
+            self.enter_servo_failsafe(i);
+            self.event(
+                BridgeEvent::ChannelMissing {
+                    servo: i,
+                    channel,
+                    timeout_ms,
+                },
+                now,
+            );
+        }
+    }
+
+    /// Servo `i` takes its failsafe action (once: a servo already in failsafe keeps it).
+    fn enter_servo_failsafe(&mut self, i: usize) {
+        if std::mem::replace(&mut self.servos[i].failsafe, true) {
+            return;
+        }
+        // A command's override ends with the failsafe: the channel's return commands again.
+        self.servos[i].override_latch = None;
+        let command = match self.cfg.servos[i].failsafe {
+            FailsafeAction::Hold => Goal::Hold,
+            FailsafeAction::Off => Goal::Off,
+            FailsafeAction::Brake => Goal::Brake,
+            FailsafeAction::Position(p) => Goal::Position(p),
+        };
+        self.command(i, command);
     }
 
     /// The next servo command: (servo index in mapping order, command).
@@ -518,9 +601,13 @@ impl BridgeCore {
     /// When [`BridgeCore::handle_timeout`] must next be called.
     pub fn poll_timeout(&self) -> Instant {
         let mut t = self.next_heartbeat.min(self.next_telemetry);
-        if let Some(last) = self.last_output_at.filter(|_| !self.failsafe) {
-            t = t
-                .min(last + Duration::from_millis(u64::from(self.cfg.mavlink.failsafe_timeout_ms)));
+        if let Some(last) = self.last_output_at.filter(|_| !self.stream_failsafe) {
+            let timeout = self.failsafe_timeout();
+            t = t.min(last + timeout);
+            let watched = self.servos.iter().filter(|s| !s.missing_announced);
+            if let Some(at) = watched.filter_map(|s| s.carried_at).min() {
+                t = t.min(at + timeout);
+            }
         }
         if !self.stream_ok {
             t = t.min(self.next_stream_request);
