@@ -504,6 +504,77 @@ fn do_set_actuator_moves_the_servo_of_that_actuator_and_nan_leaves_it() {
 }
 
 #[test]
+fn do_set_actuator_outside_minus_1_to_1_is_denied_and_moves_nothing() {
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    messages(&mut c);
+    let gcs = (255, 190);
+    let nan = f32::NAN;
+    for value in [1.5, -1.01, f32::INFINITY, f32::NEG_INFINITY] {
+        let set = command_long(
+            MavCmd::MAV_CMD_DO_SET_ACTUATOR,
+            [nan, value, nan, nan, nan, nan, 0.0],
+            (7, 140),
+        );
+        c.handle_message(0, &header(gcs), &set, t0);
+        assert!(
+            commands(&mut c).is_empty(),
+            "{value}: the servo neither moves nor holds"
+        );
+        assert_eq!(
+            acks(&messages(&mut c)),
+            vec![(
+                MavCmd::MAV_CMD_DO_SET_ACTUATOR,
+                MavResult::MAV_RESULT_DENIED,
+                255,
+                190
+            )],
+            "{value}"
+        );
+    }
+    // A bad value for an actuator of no servo of ours denies the command too: it is one command.
+    let set = command_long(
+        MavCmd::MAV_CMD_DO_SET_ACTUATOR,
+        [3.0, 0.5, nan, nan, nan, nan, 0.0],
+        (7, 140),
+    );
+    c.handle_message(0, &header(gcs), &set, t0);
+    assert!(commands(&mut c).is_empty());
+    assert_eq!(acks(&messages(&mut c))[0].1, MavResult::MAV_RESULT_DENIED);
+}
+
+#[test]
+fn do_set_servo_outside_the_servos_pwm_range_is_denied_and_moves_nothing() {
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    messages(&mut c);
+    let gcs = (255, 190);
+    // The gear on channel 9 has the default range 920–2120 µs.
+    for us in [0.0, 900.0, 2121.0, 65535.0] {
+        let set = command_long(
+            MavCmd::MAV_CMD_DO_SET_SERVO,
+            [9.0, us, 0.0, 0.0, 0.0, 0.0, 0.0],
+            (7, 140),
+        );
+        c.handle_message(0, &header(gcs), &set, t0);
+        assert!(commands(&mut c).is_empty(), "{us} µs");
+        assert_eq!(
+            acks(&messages(&mut c))[0].1,
+            MavResult::MAV_RESULT_DENIED,
+            "{us} µs"
+        );
+    }
+    let set = command_long(
+        MavCmd::MAV_CMD_DO_SET_SERVO,
+        [9.0, 2120.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        (7, 140),
+    );
+    c.handle_message(0, &header(gcs), &set, t0);
+    assert_eq!(commands(&mut c), vec![(2, Goal::Position(MmCenti(2500)))]);
+    assert_eq!(acks(&messages(&mut c))[0].1, MavResult::MAV_RESULT_ACCEPTED);
+}
+
+#[test]
 fn heartbeat_goes_out_once_a_second_with_the_worst_servo_state() {
     let t0 = Instant::now();
     let mut c = running(t0);

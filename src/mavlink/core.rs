@@ -325,7 +325,9 @@ impl BridgeCore {
         });
     }
 
-    /// MAV_CMD_DO_SET_SERVO: param 1 = output channel, param 2 = PWM in µs.
+    /// MAV_CMD_DO_SET_SERVO: param 1 = output channel, param 2 = PWM in µs. Denied, and
+    /// nothing moves, unless the channel has a servo and the PWM is inside the PWM range of
+    /// every servo on it: a pulse the servo would only hold on is not a command carried out.
     fn do_set_servo(&mut self, channel: f32, us: f32) -> MavResult {
         let valid = (1.0..=32.0).contains(&channel) && (0.0..=65535.0).contains(&us);
         if !valid {
@@ -335,22 +337,26 @@ impl BridgeCore {
         let targets: Vec<usize> = (0..self.servos.len())
             .filter(|i| self.servos[*i].channel == channel)
             .collect();
-        if targets.is_empty() {
+        let mut positions = Vec::with_capacity(targets.len());
+        for &i in &targets {
+            match self.cfg.servos[i].map_pwm(us) {
+                Some(position) => positions.push((i, position)),
+                None => return MavResult::MAV_RESULT_DENIED,
+            }
+        }
+        if positions.is_empty() {
             return MavResult::MAV_RESULT_DENIED;
         }
-        for i in targets {
-            let command = match self.cfg.servos[i].map_pwm(us) {
-                Some(position) => Goal::Position(position),
-                None => Goal::Hold,
-            };
+        for (i, position) in positions {
             self.servos[i].override_latch = Some(self.channels[usize::from(channel)]);
-            self.command(i, command);
+            self.command(i, Goal::Position(position));
         }
         MavResult::MAV_RESULT_ACCEPTED
     }
 
     /// MAV_CMD_DO_SET_ACTUATOR: params 1–6 = −1…+1 for actuators 1–6 of the set in param 7
-    /// (set 0 = actuators 1–6, set 1 = 7–12, …); NaN leaves an actuator as it is.
+    /// (set 0 = actuators 1–6, set 1 = 7–12, …); NaN leaves an actuator as it is. A value
+    /// outside −1…+1 (the spec's bounds) denies the whole command, and nothing moves.
     fn do_set_actuator(&mut self, cmd: &COMMAND_LONG_DATA) -> MavResult {
         if !cmd.param7.is_finite() || cmd.param7 < 0.0 || cmd.param7 > 20.0 {
             return MavResult::MAV_RESULT_DENIED;
@@ -359,6 +365,12 @@ impl BridgeCore {
         let params = [
             cmd.param1, cmd.param2, cmd.param3, cmd.param4, cmd.param5, cmd.param6,
         ];
+        if params
+            .iter()
+            .any(|v| !v.is_nan() && !(-1.0..=1.0).contains(v))
+        {
+            return MavResult::MAV_RESULT_DENIED;
+        }
         let mut matched = false;
         for (k, value) in params.into_iter().enumerate() {
             let actuator = set * 6 + k as u16 + 1;
