@@ -4,7 +4,8 @@
 //!
 //! Rules:
 //! - Only output messages from the autopilot (configured, or learned from the first
-//!   autopilot HEARTBEAT) are obeyed; commands are obeyed when addressed to the bridge.
+//!   autopilot HEARTBEAT) are obeyed; commands (COMMAND_LONG or COMMAND_INT) are obeyed and
+//!   answered when addressed to the bridge, and broadcast ones as [`super::commands`] says.
 //! - Each output channel maps to its servos through the PWM-mode law of the mapping file; a
 //!   value that means "no output" makes the servo hold.
 //! - The output stream is requested with MAV_CMD_SET_MESSAGE_INTERVAL until it arrives; a
@@ -18,6 +19,7 @@
 //!   message carries its channel again.
 //! - HEARTBEAT at 1 Hz, servo telemetry at the configured rate, STATUSTEXT once per event.
 
+use super::commands::{Command, Handling, handling};
 use super::health::{BridgeEvent, ServoReport};
 use super::outputs::{ChannelValues, from_actuator_output_status, from_servo_output_raw};
 use super::statustext::{Throttle, describe, with_folded};
@@ -197,7 +199,11 @@ impl BridgeCore {
             return;
         }
         if let MavMessage::COMMAND_LONG(cmd) = msg {
-            self.handle_command(link, from, cmd);
+            self.handle_command(link, from, &Command::from_long(cmd));
+            return;
+        }
+        if let MavMessage::COMMAND_INT(cmd) = msg {
+            self.handle_command(link, from, &Command::from_int(cmd));
             return;
         }
         if let MavMessage::COMMAND_ACK(ack) = msg {
@@ -300,18 +306,23 @@ impl BridgeCore {
         }
     }
 
-    fn handle_command(&mut self, link: LinkId, from: (u8, u8), cmd: &COMMAND_LONG_DATA) {
+    fn handle_command(&mut self, link: LinkId, from: (u8, u8), cmd: &Command) {
         let Some(system_id) = self.system_id else {
             return;
         };
-        if cmd.target_system != system_id || cmd.target_component != self.cfg.mavlink.component_id {
+        let how = handling(cmd, (system_id, self.cfg.mavlink.component_id));
+        if how == Handling::Ignore {
             return;
         }
         let result = match cmd.command {
-            MavCmd::MAV_CMD_DO_SET_SERVO => self.do_set_servo(cmd.param1, cmd.param2),
-            MavCmd::MAV_CMD_DO_SET_ACTUATOR => self.do_set_actuator(cmd),
+            MavCmd::MAV_CMD_DO_SET_SERVO => self.do_set_servo(cmd.params[0], cmd.params[1]),
+            MavCmd::MAV_CMD_DO_SET_ACTUATOR => self.do_set_actuator(&cmd.params),
             _ => MavResult::MAV_RESULT_UNSUPPORTED,
         };
+        if how == Handling::Broadcast && result != MavResult::MAV_RESULT_ACCEPTED {
+            // None of ours: the autopilot's answer is the one that counts.
+            return;
+        }
         self.outgoing.push_back(Outgoing {
             message: MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
                 command: cmd.command,
@@ -357,14 +368,13 @@ impl BridgeCore {
     /// MAV_CMD_DO_SET_ACTUATOR: params 1–6 = −1…+1 for actuators 1–6 of the set in param 7
     /// (set 0 = actuators 1–6, set 1 = 7–12, …); NaN leaves an actuator as it is. A value
     /// outside −1…+1 (the spec's bounds) denies the whole command, and nothing moves.
-    fn do_set_actuator(&mut self, cmd: &COMMAND_LONG_DATA) -> MavResult {
-        if !cmd.param7.is_finite() || cmd.param7 < 0.0 || cmd.param7 > 20.0 {
+    fn do_set_actuator(&mut self, params: &[f32; 7]) -> MavResult {
+        let index = params[6];
+        if !index.is_finite() || !(0.0..=20.0).contains(&index) {
             return MavResult::MAV_RESULT_DENIED;
         }
-        let set = cmd.param7.round() as u16;
-        let params = [
-            cmd.param1, cmd.param2, cmd.param3, cmd.param4, cmd.param5, cmd.param6,
-        ];
+        let set = index.round() as u16;
+        let params: [f32; 6] = std::array::from_fn(|k| params[k]);
         if params
             .iter()
             .any(|v| !v.is_nan() && !(-1.0..=1.0).contains(v))
