@@ -247,6 +247,116 @@ fn the_output_stream_is_requested_until_accepted_and_a_denied_rate_is_lowered() 
     );
 }
 
+fn interval_ack(result: MavResult) -> MavMessage {
+    MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+        command: MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+        result,
+        target_system: 7,
+        target_component: 140,
+        ..Default::default()
+    })
+}
+
+/// Drive a core that asks for its source and gets `result` to every request, for 10 s;
+/// returns the requests sent, the notes and the STATUSTEXTs.
+/// The requests sent, the notes and the STATUSTEXTs of [`answer_every_request`].
+type Answered = (
+    Vec<(f32, f32, u8, u8)>,
+    Vec<String>,
+    Vec<(MavSeverity, String)>,
+);
+
+fn answer_every_request(c: &mut BridgeCore, t0: Instant, result: MavResult) -> Answered {
+    c.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
+    let (mut requests, mut notes, mut texts) = (Vec::new(), Vec::new(), Vec::new());
+    for ms in (0..10_000).step_by(100) {
+        let t = t0 + Duration::from_millis(ms);
+        c.handle_timeout(t, &[]);
+        let out = messages(c);
+        let asked = interval_requests(&out);
+        texts.extend(statustexts(&out));
+        for _ in &asked {
+            c.handle_message(0, &header(AP), &interval_ack(result), t);
+        }
+        requests.extend(asked);
+        notes.extend(c.take_notes());
+        texts.extend(statustexts(&messages(c)));
+    }
+    (requests, notes, texts)
+}
+
+#[test]
+fn a_refusal_that_is_not_about_the_rate_stops_the_requests_and_is_said_once() {
+    for result in [
+        MavResult::MAV_RESULT_UNSUPPORTED,
+        MavResult::MAV_RESULT_FAILED,
+    ] {
+        let t0 = Instant::now();
+        let mut c = core(t0);
+        let (requests, notes, texts) = answer_every_request(&mut c, t0, result);
+        assert_eq!(
+            requests,
+            vec![(36.0, 20_000.0, 7, 1)],
+            "{result:?}: asked once"
+        );
+        assert_eq!(notes.len(), 1, "{result:?}: {notes:?}");
+        assert!(
+            notes[0].contains("does not provide SERVO_OUTPUT_RAW"),
+            "{notes:?}"
+        );
+        assert!(!notes[0].contains("SCHED_LOOP_RATE"), "{notes:?}");
+        assert_eq!(
+            texts,
+            vec![(
+                MavSeverity::MAV_SEVERITY_ERROR,
+                "LJ9DA: autopilot refuses SERVO_OUTPUT_RAW".to_string()
+            )]
+        );
+        assert_eq!(
+            c.requested_rate_hz(),
+            50.0,
+            "the rate was never the problem"
+        );
+    }
+}
+
+#[test]
+fn denied_at_a_rate_no_ardupilot_refuses_means_the_message_is_not_provided() {
+    // ArduPilot denies ACTUATOR_OUTPUT_STATUS (it has no such stream) with DENIED, as it does
+    // a rate above 0.8 × SCHED_LOOP_RATE. Above 40 Hz a DENIED may be the rate: one step down
+    // to 40 Hz. At 40 Hz no ArduPilot is too slow: the message is not provided.
+    let t0 = Instant::now();
+    let mut c = core(t0);
+    let (requests, notes, texts) = answer_every_request(&mut c, t0, MavResult::MAV_RESULT_DENIED);
+    assert_eq!(
+        requests,
+        vec![(36.0, 20_000.0, 7, 1), (36.0, 25_000.0, 7, 1)],
+        "50 Hz, then 40 Hz, then no more"
+    );
+    assert_eq!(notes.len(), 2, "{notes:?}");
+    assert!(notes[0].contains("SCHED_LOOP_RATE"), "{notes:?}");
+    assert!(
+        notes[1].contains("does not provide SERVO_OUTPUT_RAW"),
+        "{notes:?}"
+    );
+    assert_eq!(texts.len(), 1, "{texts:?}");
+}
+
+#[test]
+fn the_sched_loop_rate_advice_is_given_once_however_many_steps_down() {
+    let t0 = Instant::now();
+    let mapping = MAPPING.replace("output_rate_hz = 50", "output_rate_hz = 400");
+    let mut c = BridgeCore::new(Config::parse(&mapping, "t.toml").unwrap(), t0);
+    let (requests, notes, _) = answer_every_request(&mut c, t0, MavResult::MAV_RESULT_DENIED);
+    let rates: Vec<f32> = requests.iter().map(|r| (1e6 / r.1).round()).collect();
+    assert_eq!(rates, vec![400.0, 320.0, 240.0, 160.0, 80.0, 40.0]);
+    let advice = notes
+        .iter()
+        .filter(|n| n.contains("SCHED_LOOP_RATE"))
+        .count();
+    assert_eq!(advice, 1, "{notes:?}");
+}
+
 #[test]
 fn a_stream_at_the_asked_rate_ends_the_requests_without_an_ack() {
     let t0 = Instant::now();

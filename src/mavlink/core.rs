@@ -8,8 +8,12 @@
 //!   answered when addressed to the bridge, and broadcast ones as [`super::commands`] says.
 //! - Each output channel maps to its servos through the PWM-mode law of the mapping file; a
 //!   value that means "no output" makes the servo hold.
-//! - The output stream is requested with MAV_CMD_SET_MESSAGE_INTERVAL until it arrives; a
-//!   denied rate is retried lower, and the user is told which parameter limits it.
+//! - The output stream is requested with MAV_CMD_SET_MESSAGE_INTERVAL until it arrives. A
+//!   denial that can only be about the rate (DENIED for a rate above 40 Hz, which ArduPilot
+//!   gives above 0.8 × SCHED_LOOP_RATE) is retried lower, and the user is told once which
+//!   parameter limits it. Any other refusal (DENIED at 40 Hz or less, UNSUPPORTED, FAILED, …)
+//!   means the autopilot does not provide the message: the requests stop and the user is told
+//!   once, in the log and by STATUSTEXT.
 //! - Failsafe is per servo, kept by the messages that carry its channel (SERVO_OUTPUT_RAW
 //!   port 0 carries channels 1–16, port 1 channels 17–32; ACTUATOR_OUTPUT_STATUS the channels
 //!   it marks active). No output message at all for the failsafe timeout: every servo takes its
@@ -44,9 +48,12 @@ pub struct Outgoing {
     pub link: Option<LinkId>,
 }
 
-/// Rates tried, highest first, after the autopilot denies the requested one. ArduPilot denies
-/// anything above 0.8 × SCHED_LOOP_RATE (40 Hz on a stock 50 Hz Plane).
-const FALLBACK_RATES_HZ: [f32; 6] = [40.0, 25.0, 20.0, 10.0, 5.0, 2.0];
+/// Rates tried, highest first, after the autopilot denies the requested one for its rate:
+/// 0.8 × the SCHED_LOOP_RATE values ArduPilot is flown with (400, 300, 200, 100, 50 Hz).
+const FALLBACK_RATES_HZ: [f32; 5] = [320.0, 240.0, 160.0, 80.0, 40.0];
+/// The highest rate no ArduPilot denies for being too fast: 0.8 × its lowest SCHED_LOOP_RATE
+/// (50 Hz). A denial at this rate or below is about the message, not the rate.
+const NEVER_TOO_FAST_HZ: f32 = 40.0;
 const STREAM_REQUEST_PERIOD: Duration = Duration::from_secs(1);
 const HEARTBEAT_PERIOD: Duration = Duration::from_secs(1);
 const STATUSTEXT_HOLD_OFF: Duration = Duration::from_secs(3);
@@ -89,6 +96,10 @@ pub struct BridgeCore {
     /// Output messages counted since `rate_window_start`, to measure the stream's rate.
     rate_window: (Instant, u32),
     requested_rate_hz: f32,
+    /// The SCHED_LOOP_RATE advice has been given.
+    rate_advice_given: bool,
+    /// The autopilot refused the source for another reason than its rate: asking stops.
+    source_refused: bool,
     next_stream_request: Instant,
     next_heartbeat: Instant,
     next_telemetry: Instant,
@@ -120,6 +131,8 @@ impl BridgeCore {
                 .autopilot_system_id
                 .map(|sys| (sys, cfg.mavlink.autopilot_component_id)),
             requested_rate_hz: cfg.mavlink.output_rate_hz,
+            rate_advice_given: false,
+            source_refused: false,
             servos,
             cfg,
             started: now,
@@ -213,7 +226,7 @@ impl BridgeCore {
                 && ack.command == MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
                 && to_us
             {
-                self.handle_interval_ack(ack.result);
+                self.handle_interval_ack(ack.result, now);
             }
             return;
         }
@@ -408,36 +421,52 @@ impl BridgeCore {
         }
     }
 
-    fn handle_interval_ack(&mut self, result: MavResult) {
-        if result == MavResult::MAV_RESULT_ACCEPTED {
-            self.stream_ok = true;
-            return;
+    fn handle_interval_ack(&mut self, result: MavResult, now: Instant) {
+        match result {
+            MavResult::MAV_RESULT_ACCEPTED => self.stream_ok = true,
+            MavResult::MAV_RESULT_IN_PROGRESS | MavResult::MAV_RESULT_TEMPORARILY_REJECTED => {}
+            MavResult::MAV_RESULT_DENIED if self.requested_rate_hz > NEVER_TOO_FAST_HZ => {
+                self.step_rate_down();
+            }
+            _ => self.refuse_source(result, now),
         }
-        if matches!(
-            result,
-            MavResult::MAV_RESULT_IN_PROGRESS | MavResult::MAV_RESULT_TEMPORARILY_REJECTED
-        ) {
-            return;
-        }
+    }
+
+    /// The autopilot denied the rate: ask again at once, lower, and say which parameter
+    /// limits it (once).
+    fn step_rate_down(&mut self) {
         let denied = self.requested_rate_hz;
-        let Some(next) = FALLBACK_RATES_HZ.into_iter().find(|r| *r < denied) else {
-            // Nothing lower to ask for: take the stream as it comes.
-            self.stream_ok = true;
-            return;
-        };
+        let next = FALLBACK_RATES_HZ
+            .into_iter()
+            .find(|r| *r < denied)
+            .unwrap_or(NEVER_TOO_FAST_HZ);
         self.requested_rate_hz = next;
-        let message = match self.cfg.mavlink.source {
-            Source::ServoOutputRaw => "SERVO_OUTPUT_RAW",
-            Source::ActuatorOutputStatus => "ACTUATOR_OUTPUT_STATUS",
-        };
-        let note = format!(
-            "the autopilot refused {message} at {denied} Hz ({result:?}); asking for {next} Hz. \
-             On ArduPilot the limit is 0.8 × SCHED_LOOP_RATE: raise SCHED_LOOP_RATE, or lower \
-             [mavlink] output_rate_hz"
-        );
-        self.notes.push(note);
-        // Ask again at once, at the lower rate.
+        if !std::mem::replace(&mut self.rate_advice_given, true) {
+            let message = self.cfg.mavlink.source.message_name();
+            self.notes.push(format!(
+                "the autopilot denied {message} at {denied} Hz; asking for less (now {next} Hz). \
+                 On ArduPilot the limit is 0.8 × SCHED_LOOP_RATE: raise SCHED_LOOP_RATE, or lower \
+                 [mavlink] output_rate_hz"
+            ));
+        }
         self.next_stream_request = self.started;
+    }
+
+    /// The autopilot does not provide the chosen source: stop asking, and say so once.
+    fn refuse_source(&mut self, result: MavResult, now: Instant) {
+        if std::mem::replace(&mut self.source_refused, true) {
+            return;
+        }
+        let source = self.cfg.mavlink.source;
+        let message = source.message_name();
+        let rate = self.requested_rate_hz;
+        self.notes.push(format!(
+            "the autopilot refused {message} at {rate} Hz ({result:?}), which is not a refusal \
+             of the rate: this autopilot does not provide {message}. The servos get no outputs; \
+             set [mavlink] source to a message it sends (ArduPilot: SERVO_OUTPUT_RAW; PX4: \
+             ACTUATOR_OUTPUT_STATUS or SERVO_OUTPUT_RAW)"
+        ));
+        self.event(BridgeEvent::SourceRefused { source }, now);
     }
 
     /// Something happened on a bus (or to the bridge): announce it.
@@ -482,7 +511,7 @@ impl BridgeCore {
         }
         if now >= self.next_stream_request {
             self.next_stream_request = now + STREAM_REQUEST_PERIOD;
-            if !self.stream_ok {
+            if !self.stream_ok && !self.source_refused {
                 self.request_stream();
             }
         }
@@ -631,7 +660,7 @@ impl BridgeCore {
                 t = t.min(at + timeout);
             }
         }
-        if !self.stream_ok {
+        if !self.stream_ok && !self.source_refused {
             t = t.min(self.next_stream_request);
         }
         if let Some(d) = self.throttle.next_deadline() {

@@ -91,6 +91,10 @@ pub enum BridgeEvent {
         servo: usize,
         channel: u8,
     },
+    /// The autopilot refused to send the configured output message (not for its rate).
+    SourceRefused {
+        source: crate::config::Source,
+    },
     PortLost {
         bus: String,
     },

@@ -61,6 +61,10 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
             MAV_SEVERITY_NOTICE,
             format!("{servo_name}: ch{channel} back, failsafe cleared"),
         ),
+        BridgeEvent::SourceRefused { source } => (
+            MAV_SEVERITY_ERROR,
+            format!("LJ9DA: autopilot refuses {source}"),
+        ),
         BridgeEvent::RepliesDegraded { bus, percent } => (
             MAV_SEVERITY_WARNING,
             format!("LJ9DA bus {bus}: {percent}% replies bad"),
@@ -122,6 +126,7 @@ fn kind(event: &BridgeEvent) -> (Subject, u8) {
         BridgeEvent::ChannelMissing { servo, .. } | BridgeEvent::ChannelBack { servo, .. } => {
             (Subject::Servo(*servo), 6)
         }
+        BridgeEvent::SourceRefused { .. } => (Subject::Bridge, 13),
         BridgeEvent::PortLost { bus } | BridgeEvent::PortBack { bus } => {
             (Subject::Bus(bus.clone()), 11)
         }
