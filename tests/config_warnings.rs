@@ -67,3 +67,49 @@ fn check_prints_the_warnings_after_the_table() {
         "{stdout}"
     );
 }
+
+fn servos(n: usize, telemetry: &str) -> String {
+    let mut text = format!(
+        "[mavlink]\nconnection = \"udpin:0.0.0.0:14560\"\n[telemetry]\n{telemetry}\n[[bus]]\nname = \"wing\"\nport = \"/dev/null\"\n"
+    );
+    for i in 1..=n {
+        text.push_str(&format!(
+            "[[servo]]\nname = \"s{i}\"\nbus = \"wing\"\nid = {i}\nchannel = {i}\n"
+        ));
+    }
+    text
+}
+
+#[test]
+fn more_than_20_named_values_warn_that_mission_planner_shows_20() {
+    let cfg = Config::parse(&servos(6, ""), "t.toml").unwrap();
+    let warnings = cfg.warnings();
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(
+        warnings[0].contains("24 NAMED_VALUE_FLOAT names"),
+        "{warnings:?}"
+    );
+    assert!(warnings[0].contains("Mission Planner"), "{warnings:?}");
+    assert!(warnings[0].contains("at most 3 per servo"), "{warnings:?}");
+    // Five servos × four, or six servos × three, fit.
+    assert!(
+        Config::parse(&servos(5, ""), "t.toml")
+            .unwrap()
+            .warnings()
+            .is_empty()
+    );
+    let three = "named_values = [\"pos\", \"cur\", \"tmp\"]";
+    assert!(
+        Config::parse(&servos(6, three), "t.toml")
+            .unwrap()
+            .warnings()
+            .is_empty()
+    );
+    let off = "named_value_float = false";
+    assert!(
+        Config::parse(&servos(6, off), "t.toml")
+            .unwrap()
+            .warnings()
+            .is_empty()
+    );
+}

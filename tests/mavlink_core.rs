@@ -869,36 +869,166 @@ fn heartbeat_goes_out_once_a_second_with_the_worst_servo_state() {
     );
 }
 
-#[test]
-fn servo_telemetry_goes_out_at_the_configured_rate_with_named_values_and_esc_blocks() {
-    let t0 = Instant::now();
-    let mut c = running(t0);
-    let r = ServoReport {
+fn online(position_mm: f32) -> ServoReport {
+    ServoReport {
         state: Some(ServoState::Online),
-        position_mm: Some(-12.02),
+        position_mm: Some(position_mm),
         current_a: Some(0.06),
         temperature_c: Some(45.0),
         voltage_v: Some(11.1),
         ..Default::default()
-    };
-    let mut named = Vec::new();
-    let mut esc_status = 0;
-    for ms in (0..1000).step_by(5) {
-        c.handle_timeout(t0 + Duration::from_millis(ms), &[r, r, r]);
-        for o in messages(&mut c) {
-            match o.message {
-                MavMessage::NAMED_VALUE_FLOAT(v) => {
-                    named.push((v.name.to_str().unwrap().to_string(), v.value))
-                }
-                MavMessage::ESC_STATUS(_) => esc_status += 1,
-                _ => {}
-            }
-        }
     }
-    assert_eq!(esc_status, 5, "5 Hz × 1 block of four");
-    assert_eq!(named.len(), 5 * 3 * 4);
-    assert!(named.contains(&("ail_l_pos".to_string(), -12.02)));
-    assert!(named.contains(&("gear_tmp".to_string(), 45.0)));
+}
+
+/// Every message the core sends in `seconds`, called every 5 ms with `report(ms)` for each of
+/// its `servos`.
+fn sent_for(
+    c: &mut BridgeCore,
+    t0: Instant,
+    seconds: u64,
+    servos: usize,
+    report: impl Fn(u64) -> ServoReport,
+) -> Vec<MavMessage> {
+    c.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
+    let mut out = Vec::new();
+    for ms in (0..seconds * 1000).step_by(5) {
+        let r = report(ms);
+        c.handle_timeout(t0 + Duration::from_millis(ms), &vec![r; servos]);
+        out.extend(messages(c).into_iter().map(|o| o.message));
+    }
+    out
+}
+
+fn named(out: &[MavMessage]) -> Vec<(String, f32)> {
+    out.iter()
+        .filter_map(|m| match m {
+            MavMessage::NAMED_VALUE_FLOAT(v) => {
+                Some((v.name.to_str().unwrap().to_string(), v.value))
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn named_values_go_out_when_they_change_and_are_refreshed_every_5_s() {
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    // rate_hz = 5: looked at every 200 ms. Only the left aileron's position changes.
+    let out = sent_for(&mut c, t0, 10, 3, |ms| {
+        online(-12.0 + (ms / 200) as f32 * 0.01)
+    });
+    let names = named(&out);
+    let count = |name: &str| names.iter().filter(|(n, _)| n == name).count();
+    assert_eq!(count("ail_l_pos"), 50, "changed at every look, 5 Hz × 10 s");
+    assert_eq!(
+        count("ail_l_tmp"),
+        2,
+        "unchanged: at 0 s and refreshed at 5 s"
+    );
+    assert_eq!(count("gear_vlt"), 2);
+    assert!(names.contains(&("gear_tmp".to_string(), 45.0)));
+}
+
+#[test]
+fn each_esc_carrier_has_its_own_rate_and_esc_info_defaults_to_1_hz() {
+    let t0 = Instant::now();
+    let mapping = MAPPING.replace("[telemetry]", "[telemetry]\nesc_status_hz = 2");
+    let mut c = BridgeCore::new(Config::parse(&mapping, "t.toml").unwrap(), t0);
+    let out = sent_for(&mut c, t0, 10, 3, |_| online(0.0));
+    let info = out
+        .iter()
+        .filter(|m| matches!(m, MavMessage::ESC_INFO(_)))
+        .count();
+    let status = out
+        .iter()
+        .filter(|m| matches!(m, MavMessage::ESC_STATUS(_)))
+        .count();
+    assert_eq!(
+        (info, status),
+        (10, 20),
+        "1 Hz and 2 Hz × 1 block of four, 10 s"
+    );
+}
+
+#[test]
+fn esc_indexes_start_clear_of_the_motor_escs_unless_the_mapping_says() {
+    let index = |mapping: &str| {
+        let t0 = Instant::now();
+        let mut c = BridgeCore::new(Config::parse(mapping, "t.toml").unwrap(), t0);
+        let out = sent_for(&mut c, t0, 1, 3, |_| online(0.0));
+        out.iter()
+            .filter_map(|m| match m {
+                MavMessage::ESC_INFO(i) => Some(("info", i.index)),
+                MavMessage::ESC_STATUS(s) => Some(("status", s.index)),
+                _ => None,
+            })
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(index(MAPPING), vec![("info", 16), ("status", 16)]);
+    let at_zero = MAPPING.replace("[telemetry]", "[telemetry]\nesc_index_base = 0");
+    assert_eq!(index(&at_zero), vec![("info", 0), ("status", 0)]);
+}
+
+#[test]
+fn the_mapping_chooses_the_named_quantities() {
+    let t0 = Instant::now();
+    let mapping = MAPPING.replace(
+        "[telemetry]",
+        "[telemetry]\nnamed_values = [\"tmp\", \"pos\"]",
+    );
+    let mut c = BridgeCore::new(Config::parse(&mapping, "t.toml").unwrap(), t0);
+    let mut names: Vec<String> = named(&sent_for(&mut c, t0, 1, 3, |_| online(0.0)))
+        .into_iter()
+        .map(|(n, _)| n)
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        [
+            "ail_l_pos",
+            "ail_l_tmp",
+            "ail_r_pos",
+            "ail_r_tmp",
+            "gear_pos",
+            "gear_tmp"
+        ]
+    );
+}
+
+/// Bytes on the wire of MAVLink 2 frames.
+fn wire_bytes(out: &[MavMessage]) -> usize {
+    let header = MavHeader::default();
+    out.iter()
+        .map(|m| {
+            let mut buf = Vec::new();
+            mavlink::write_v2_msg(&mut buf, header, m).unwrap();
+            buf.len()
+        })
+        .sum()
+}
+
+#[test]
+fn default_telemetry_of_four_moving_servos_fits_a_tenth_of_a_57600_baud_radio() {
+    // 57 600 baud = 5 760 bytes/s, shared with all of the autopilot's own telemetry.
+    let mapping = lj9da_bridge::config::SITL_DEFAULT_TOML;
+    let t0 = Instant::now();
+    let mut c = BridgeCore::new(Config::parse(mapping, "t.toml").unwrap(), t0);
+    let servos = c_servos(mapping);
+    // Worst case: every value changes all the time.
+    let out = sent_for(&mut c, t0, 60, servos, |ms| ServoReport {
+        current_a: Some(0.01 * (ms % 97) as f32),
+        temperature_c: Some(40.0 + (ms % 13) as f32),
+        voltage_v: Some(11.0 + 0.01 * (ms % 7) as f32),
+        ..online(0.01 * (ms % 1000) as f32)
+    });
+    let per_s = wire_bytes(&out) / 60;
+    println!("default telemetry, {servos} servos, every value changing: {per_s} bytes/s");
+    assert!(per_s <= 576, "{per_s} bytes/s");
+}
+
+fn c_servos(mapping: &str) -> usize {
+    Config::parse(mapping, "t.toml").unwrap().servos.len()
 }
 
 #[test]

@@ -54,7 +54,7 @@ pub mod warnings;
 pub use bridge::{BridgeSection, ExitAction};
 pub use bus::BusSection;
 pub use error::{ConfigError, Location};
-pub use mavlink::{MavlinkConfig, Source, TelemetryConfig};
+pub use mavlink::{MavlinkConfig, Quantity, Source, TelemetryConfig};
 pub use record::RecordSection;
 pub use servo::{FailsafeAction, PwmRange, ServoConfig};
 
@@ -310,7 +310,12 @@ mod tests {
         assert_eq!(m.failsafe_timeout_ms, 500);
         assert_eq!(m.gcs, None);
         assert_eq!(c.telemetry, TelemetryConfig::default());
-        assert_eq!(c.telemetry.rate_hz, 5.0);
+        // Defaults that fit a 57 600-baud telemetry radio, ESC indexes clear of motor ESCs.
+        assert_eq!(c.telemetry.rate_hz, 1.0);
+        assert_eq!(c.telemetry.esc_info_hz, 1.0);
+        assert_eq!(c.telemetry.esc_status_hz, 1.0);
+        assert_eq!(c.telemetry.esc_index_base, 16);
+        assert_eq!(c.telemetry.named_values, mavlink::Quantity::ALL.to_vec());
         assert_eq!(c.bridge.on_exit, ExitAction::Hold);
         assert_eq!(c.buses[0].baud, BaudRate::B115200);
         assert_eq!(c.buses[0].turnaround_ms, None);

@@ -3,6 +3,10 @@
 
 use super::{Config, Source};
 
+/// How many NAMED_VALUE_FLOAT names Mission Planner shows (`CurrentState.cs` keeps 20 slots,
+/// taken in order of arrival): a name past the 20th never appears in its Status tab.
+pub const MISSION_PLANNER_NAMED_VALUES: usize = 20;
+
 /// The first channel SERVO_OUTPUT_RAW carries with `port = 1`.
 const FIRST_PORT_1_CHANNEL: u8 = 17;
 
@@ -10,6 +14,7 @@ const FIRST_PORT_1_CHANNEL: u8 = 17;
 pub fn warnings(cfg: &Config) -> Vec<String> {
     let mut out = Vec::new();
     out.extend(px4_port_1_channels(cfg));
+    out.extend(mission_planner_names(cfg));
     out
 }
 
@@ -35,5 +40,26 @@ fn px4_port_1_channels(cfg: &Config) -> Option<String> {
          [mavlink] source = \"ACTUATOR_OUTPUT_STATUS\", or these servos will only ever take \
          their failsafe action.",
         high.join(", ")
+    ))
+}
+
+/// Mission Planner shows at most 20 NAMED_VALUE_FLOAT names.
+fn mission_planner_names(cfg: &Config) -> Option<String> {
+    let t = &cfg.telemetry;
+    if !t.named_value_float {
+        return None;
+    }
+    let names = cfg.servos.len() * t.named_values.len();
+    if names <= MISSION_PLANNER_NAMED_VALUES {
+        return None;
+    }
+    let per_servo = t.named_values.len();
+    let fit = MISSION_PLANNER_NAMED_VALUES / cfg.servos.len().max(1);
+    Some(format!(
+        "warning: {} servos × {per_servo} quantities = {names} NAMED_VALUE_FLOAT names; Mission \
+         Planner shows the first {MISSION_PLANNER_NAMED_VALUES} only. Choose at most {fit} per \
+         servo with [telemetry] named_values (e.g. named_values = [\"pos\", \"tmp\"]); \
+         QGroundControl's ESC indicator (esc = true) still shows current, temperature and voltage.",
+        cfg.servos.len()
     ))
 }

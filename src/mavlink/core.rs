@@ -21,11 +21,13 @@
 //!   servos it carries. Output messages that keep coming without a servo's channel for the
 //!   timeout: that servo takes its failsafe action, announced once for the servo, until a
 //!   message carries its channel again.
-//! - HEARTBEAT at 1 Hz, servo telemetry at the configured rate, STATUSTEXT once per event.
+//! - HEARTBEAT at 1 Hz, servo telemetry as [`super::schedule`] says, STATUSTEXT once per
+//!   event.
 
 use super::commands::{Command, Handling, handling};
 use super::health::{BridgeEvent, ServoReport};
 use super::outputs::{ChannelValues, from_actuator_output_status, from_servo_output_raw};
+use super::schedule::TelemetrySchedule;
 use super::statustext::{Throttle, describe, with_folded};
 use super::telemetry;
 use crate::bus::Goal;
@@ -102,8 +104,7 @@ pub struct BridgeCore {
     source_refused: bool,
     next_stream_request: Instant,
     next_heartbeat: Instant,
-    next_telemetry: Instant,
-    esc_counter: u16,
+    telemetry: TelemetrySchedule,
     throttle: Throttle,
     commands: VecDeque<(usize, Goal)>,
     outgoing: VecDeque<Outgoing>,
@@ -112,6 +113,7 @@ pub struct BridgeCore {
 
 impl BridgeCore {
     pub fn new(cfg: Config, now: Instant) -> Self {
+        let servo_count = cfg.servos.len();
         let servos = cfg
             .servos
             .iter()
@@ -143,8 +145,7 @@ impl BridgeCore {
             rate_window: (now, 0),
             next_stream_request: now,
             next_heartbeat: now,
-            next_telemetry: now,
-            esc_counter: 0,
+            telemetry: TelemetrySchedule::new(servo_count, now),
             throttle: Throttle::new(STATUSTEXT_HOLD_OFF),
             commands: VecDeque::new(),
             outgoing: VecDeque::new(),
@@ -523,35 +524,11 @@ impl BridgeCore {
                 link: None,
             });
         }
-        if now >= self.next_telemetry {
-            let period = Duration::from_secs_f32(1.0 / self.cfg.telemetry.rate_hz.max(0.1));
-            self.next_telemetry = now + period;
-            self.push_telemetry(now, reports);
-        }
-    }
-
-    fn push_telemetry(&mut self, now: Instant, reports: &[ServoReport]) {
-        let since_boot = now.duration_since(self.started);
-        if self.cfg.telemetry.named_value_float {
-            let ms = since_boot.as_millis().min(u128::from(u32::MAX)) as u32;
-            for (servo, report) in self.cfg.servos.iter().zip(reports) {
-                for message in telemetry::named_values(&servo.label, report, ms) {
-                    self.outgoing.push_back(Outgoing {
-                        message,
-                        link: None,
-                    });
-                }
-            }
-        }
-        if self.cfg.telemetry.esc && !reports.is_empty() {
-            self.esc_counter = self.esc_counter.wrapping_add(1);
-            let us = since_boot.as_micros().min(u128::from(u64::MAX)) as u64;
-            for message in telemetry::esc_blocks(reports, us, self.esc_counter) {
-                self.outgoing.push_back(Outgoing {
-                    message,
-                    link: None,
-                });
-            }
+        for message in self.telemetry.due(&self.cfg, reports, now) {
+            self.outgoing.push_back(Outgoing {
+                message,
+                link: None,
+            });
         }
     }
 
@@ -651,7 +628,7 @@ impl BridgeCore {
 
     /// When [`BridgeCore::handle_timeout`] must next be called.
     pub fn poll_timeout(&self) -> Instant {
-        let mut t = self.next_heartbeat.min(self.next_telemetry);
+        let mut t = self.next_heartbeat.min(self.telemetry.next_deadline());
         if let Some(last) = self.last_output_at.filter(|_| !self.stream_failsafe) {
             let timeout = self.failsafe_timeout();
             t = t.min(last + timeout);
