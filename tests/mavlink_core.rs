@@ -952,6 +952,35 @@ fn each_esc_carrier_has_its_own_rate_and_esc_info_defaults_to_1_hz() {
 }
 
 #[test]
+fn a_servo_going_offline_sends_esc_info_at_the_next_look_not_a_second_later() {
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    // rate_hz = 5: looks every 200 ms; ESC_INFO at 1 Hz.
+    let out = sent_for(&mut c, t0, 2, 3, |_| online(0.0));
+    let before = out
+        .iter()
+        .filter(|m| matches!(m, MavMessage::ESC_INFO(_)))
+        .count();
+    assert_eq!(before, 2, "1 Hz: at 0 and 1 s");
+    let lost = ServoReport {
+        state: Some(ServoState::Offline),
+        ..Default::default()
+    };
+    // The second servo is lost at 2.1 s: the look then (due since 2.0 s) sends ESC_INFO,
+    // whose own turn would be at 3 s.
+    let reports = [online(0.0), lost, online(0.0)];
+    c.handle_timeout(t0 + Duration::from_millis(2100), &reports);
+    let info: Vec<u8> = messages(&mut c)
+        .into_iter()
+        .filter_map(|o| match o.message {
+            MavMessage::ESC_INFO(i) => Some(i.info),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(info, vec![0b101], "servo 2 offline, sent at once");
+}
+
+#[test]
 fn esc_indexes_start_clear_of_the_motor_escs_unless_the_mapping_says() {
     let index = |mapping: &str| {
         let t0 = Instant::now();

@@ -1,7 +1,9 @@
 //! When each telemetry carrier goes out, sans-IO: NAMED_VALUE_FLOAT, ESC_INFO and ESC_STATUS
 //! each at the rate of the mapping's `[telemetry]` table, and a NAMED_VALUE_FLOAT value only
 //! when it has changed since it was last sent, or after [`NAMED_VALUE_REFRESH_S`] without a
-//! send (for a ground station that connects late). Everything the bridge sends is forwarded by
+//! send (for a ground station that connects late). A servo going offline or raising a failure
+//! flag sends ESC_INFO at the next look (the NAMED_VALUE_FLOAT rate) instead of waiting for its
+//! own slower rate. Everything the bridge sends is forwarded by
 //! the autopilot to every link, a 57 600-baud telemetry radio included.
 
 use super::health::ServoReport;
@@ -21,6 +23,19 @@ pub struct TelemetrySchedule {
     esc_counter: u16,
     /// Per servo, per quantity (in [`Quantity::ALL`] order): the value last sent and when.
     sent: Vec<[Option<(f32, Instant)>; 4]>,
+    /// Per block of four: the online bits and failure flags of the ESC_INFO last sent.
+    esc_state_sent: Vec<(u8, [u16; 4])>,
+}
+
+/// What ESC_INFO says of the servos' state (not their measurements), per block.
+fn esc_states(blocks: &[MavMessage]) -> Vec<(u8, [u16; 4])> {
+    blocks
+        .iter()
+        .filter_map(|m| match m {
+            MavMessage::ESC_INFO(i) => Some((i.info, i.failure_flags)),
+            _ => None,
+        })
+        .collect()
 }
 
 fn period(hz: f32) -> Duration {
@@ -45,6 +60,7 @@ impl TelemetrySchedule {
             next_esc_status: now,
             esc_counter: 0,
             sent: vec![[None; 4]; servos],
+            esc_state_sent: Vec::new(),
         }
     }
 
@@ -67,18 +83,21 @@ impl TelemetrySchedule {
                 let ms = since_boot.as_millis().min(u128::from(u32::MAX)) as u32;
                 self.named_values(cfg, reports, ms, now, &mut out);
             }
+            if t.esc {
+                let blocks = telemetry::esc_info_blocks(reports, t.esc_index_base, us, 0);
+                if esc_states(&blocks) != self.esc_state_sent {
+                    self.next_esc_info = now;
+                }
+            }
         }
         if now >= self.next_esc_info {
             advance(&mut self.next_esc_info, t.esc_info_hz, now);
             if t.esc && !reports.is_empty() {
                 self.esc_counter = self.esc_counter.wrapping_add(1);
                 let base = t.esc_index_base;
-                out.extend(telemetry::esc_info_blocks(
-                    reports,
-                    base,
-                    us,
-                    self.esc_counter,
-                ));
+                let blocks = telemetry::esc_info_blocks(reports, base, us, self.esc_counter);
+                self.esc_state_sent = esc_states(&blocks);
+                out.extend(blocks);
             }
         }
         if now >= self.next_esc_status {
