@@ -110,6 +110,46 @@ fn running(t0: Instant) -> BridgeCore {
 }
 
 #[test]
+fn the_autopilots_heartbeat_is_relayed_to_the_ground_station_link_under_its_own_ids() {
+    // QGroundControl creates a vehicle only from an autopilot's HEARTBEAT: the `gcs` link
+    // must carry one, or it shows nothing of the bridge there.
+    let t0 = Instant::now();
+    let mapping = MAPPING.replace(
+        "failsafe_timeout_ms = 500",
+        "failsafe_timeout_ms = 500\ngcs = \"udpout:127.0.0.1:14550\"",
+    );
+    let mut c = BridgeCore::new(Config::parse(&mapping, "t.toml").unwrap(), t0);
+    c.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
+    let relayed: Vec<Outgoing> = messages(&mut c)
+        .into_iter()
+        .filter(|o| matches!(o.message, MavMessage::HEARTBEAT(_)))
+        .collect();
+    assert_eq!(
+        relayed,
+        vec![Outgoing {
+            message: autopilot_heartbeat(),
+            link: Some(1),
+            sender: Some(AP),
+        }]
+    );
+    // Another system's heartbeat, or the autopilot's heard on the GCS link, is not relayed.
+    c.handle_message(0, &header((9, 1)), &autopilot_heartbeat(), t0);
+    c.handle_message(1, &header(AP), &autopilot_heartbeat(), t0);
+    assert!(messages(&mut c).is_empty());
+    // The bridge's own HEARTBEAT goes out under its own ids (sender None).
+    c.handle_timeout(t0, &[]);
+    let own = messages(&mut c)
+        .into_iter()
+        .find(|o| matches!(o.message, MavMessage::HEARTBEAT(_)))
+        .unwrap();
+    assert_eq!((own.link, own.sender), (None, None));
+    // Without a `gcs` link nothing is relayed.
+    let mut c = core(t0);
+    c.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
+    assert!(messages(&mut c).is_empty());
+}
+
+#[test]
 fn the_autopilot_is_learned_from_its_heartbeat_and_strangers_are_ignored() {
     let t0 = Instant::now();
     let mut c = core(t0);

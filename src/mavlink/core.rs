@@ -21,6 +21,9 @@
 //!   servos it carries. Output messages that keep coming without a servo's channel for the
 //!   timeout: that servo takes its failsafe action, announced once for the servo, until a
 //!   message carries its channel again.
+//! - The autopilot's HEARTBEAT is relayed to the ground-station link (`[mavlink] gcs`), so
+//!   that QGroundControl, which creates a vehicle only from an autopilot's HEARTBEAT, shows
+//!   the bridge's messages there.
 //! - HEARTBEAT at 1 Hz, servo telemetry as [`super::schedule`] says, STATUSTEXT once per
 //!   event.
 
@@ -43,11 +46,18 @@ use std::time::{Duration, Instant};
 pub type LinkId = usize;
 pub const AUTOPILOT_LINK: LinkId = 0;
 
+/// The extra link for a ground station (`[mavlink] gcs`), when there is one.
+pub const GCS_LINK: LinkId = 1;
+
 /// A message to send: on one link, or on every link.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Outgoing {
     pub message: MavMessage,
     pub link: Option<LinkId>,
+    /// `None`: the bridge's own message, sent with [`BridgeCore::header`]. `Some((system,
+    /// component))`: another's message relayed under its own ids (the autopilot's HEARTBEAT
+    /// on the ground-station link).
+    pub sender: Option<(u8, u8)>,
 }
 
 /// Rates tried, highest first, after the autopilot denies the requested one for its rate:
@@ -210,6 +220,18 @@ impl BridgeCore {
                 self.next_stream_request = now;
                 tracing::info!(system = from.0, component = from.1, "autopilot found");
             }
+            if link == AUTOPILOT_LINK
+                && Some(from) == self.autopilot
+                && self.cfg.mavlink.gcs.is_some()
+            {
+                // QGroundControl creates a vehicle only from an autopilot's HEARTBEAT: without
+                // it, the ground-station link would show nothing of the bridge.
+                self.outgoing.push_back(Outgoing {
+                    message: msg.clone(),
+                    link: Some(GCS_LINK),
+                    sender: Some(from),
+                });
+            }
             return;
         }
         if let MavMessage::COMMAND_LONG(cmd) = msg {
@@ -347,6 +369,7 @@ impl BridgeCore {
                 target_component: from.1,
             }),
             link: Some(link),
+            sender: None,
         });
     }
 
@@ -498,6 +521,7 @@ impl BridgeCore {
         self.outgoing.push_back(Outgoing {
             message: telemetry::statustext(severity, &text),
             link: None,
+            sender: None,
         });
     }
 
@@ -522,12 +546,14 @@ impl BridgeCore {
             self.outgoing.push_back(Outgoing {
                 message: telemetry::heartbeat(status),
                 link: None,
+                sender: None,
             });
         }
         for message in self.telemetry.due(&self.cfg, reports, now) {
             self.outgoing.push_back(Outgoing {
                 message,
                 link: None,
+                sender: None,
             });
         }
     }
@@ -551,6 +577,7 @@ impl BridgeCore {
                 ..Default::default()
             }),
             link: Some(AUTOPILOT_LINK),
+            sender: None,
         });
     }
 
