@@ -14,9 +14,12 @@
 //! | | `component_id` | 140 (MAV_COMP_ID_SERVO1) | the bridge's component |
 //! | | `source` | `"SERVO_OUTPUT_RAW"` | or `"ACTUATOR_OUTPUT_STATUS"` (PX4) |
 //! | | `output_rate_hz` | 50 | requested rate; ArduPilot denies more than 0.8 × SCHED_LOOP_RATE |
-//! | | `failsafe_timeout_ms` | 500 | no outputs for this long → each servo's failsafe |
-//! | | `gcs` | none | an extra telemetry-only output, e.g. `udpout:127.0.0.1:14550` |
-//! | `[telemetry]` | `rate_hz` | 5 | per-servo telemetry rate |
+//! | | `failsafe_timeout_ms` | 500 | no message carrying a servo's channel for this long → its failsafe |
+//! | | `gcs` | none | an extra telemetry-only output (the autopilot's HEARTBEAT is relayed there), e.g. `udpout:127.0.0.1:14550` |
+//! | `[telemetry]` | `rate_hz` | 1 | how often NAMED_VALUE_FLOAT values are looked at; sent when changed, or every 5 s |
+//! | | `named_values` | `["pos", "cur", "tmp", "vlt"]` | which quantities go out as NAMED_VALUE_FLOAT |
+//! | | `esc_info_hz`, `esc_status_hz` | 1, 1 | the rates of ESC_INFO and ESC_STATUS |
+//! | | `esc_index_base` | 16 | the ESC index of the first servo (clear of motor ESCs) |
 //! | | `named_value_float`, `esc`, `statustext` | true | which carriers are sent |
 //! | `[bridge]` | `on_exit` | `"hold"` | `"hold"`, `"off"` or `"brake"` when the bridge stops |
 //! | `[[bus]]` | `name`, `port` | (required) | the bus's name and serial port |
