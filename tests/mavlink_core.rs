@@ -559,6 +559,79 @@ fn after_the_streams_failsafe_a_channel_that_does_not_return_is_announced() {
     );
 }
 
+#[test]
+fn a_command_ends_a_servos_failsafe_like_a_message_carrying_its_channel() {
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    let mut t = t0;
+    for _ in 0..30 {
+        t += Duration::from_millis(20);
+        c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), t);
+        c.handle_timeout(t, &[]);
+    }
+    assert!(c.servo_in_failsafe(1), "channel 18 missing");
+    commands(&mut c);
+    messages(&mut c);
+    let set = command_long(
+        MavCmd::MAV_CMD_DO_SET_SERVO,
+        [18.0, 1568.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        (7, 140),
+    );
+    c.handle_message(0, &header((255, 190)), &set, t);
+    assert!(!c.servo_in_failsafe(1));
+    assert_eq!(commands(&mut c), vec![(1, Goal::Position(MmCenti(-200)))]);
+    // The operator's command holds; the absence was announced already and is not again.
+    for _ in 0..100 {
+        t += Duration::from_millis(20);
+        c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), t);
+        c.handle_timeout(t, &[]);
+    }
+    assert!(commands(&mut c).is_empty());
+    assert!(statustexts(&messages(&mut c)).is_empty());
+}
+
+#[test]
+fn a_servo_driven_by_do_set_actuator_alone_has_no_channel_to_miss() {
+    // The payload release is on channel 20, which this autopilot never outputs: it follows
+    // DO_SET_ACTUATOR only. Port 0 running keeps it out of failsafe; the stream stopping does not.
+    let mapping = format!(
+        "{MAPPING}\n[[servo]]\nname = \"release\"\nbus = \"wing\"\nid = 4\nchannel = 20\nactuator = 1\nfailsafe = \"brake\"\n"
+    );
+    let t0 = Instant::now();
+    let mut c = BridgeCore::new(Config::parse(&mapping, "t.toml").unwrap(), t0);
+    c.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
+    let mut t = t0;
+    let mut texts = Vec::new();
+    for _ in 0..100 {
+        t += Duration::from_millis(20);
+        c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), t);
+        c.handle_timeout(t, &[]);
+        texts.extend(statustexts(&messages(&mut c)));
+    }
+    assert!(!c.servo_in_failsafe(3));
+    assert!(
+        c.servo_in_failsafe(1),
+        "the aileron on channel 18 is missed"
+    );
+    assert!(
+        texts.iter().all(|(_, text)| !text.starts_with("release")),
+        "{texts:?}"
+    );
+    let nan = f32::NAN;
+    let set = command_long(
+        MavCmd::MAV_CMD_DO_SET_ACTUATOR,
+        [1.0, nan, nan, nan, nan, nan, 0.0],
+        (7, 140),
+    );
+    commands(&mut c);
+    c.handle_message(0, &header((255, 190)), &set, t);
+    assert_eq!(commands(&mut c), vec![(3, Goal::Position(MmCenti(2500)))]);
+    // No outputs at all: every servo, this one too, takes its failsafe action.
+    c.handle_timeout(t + Duration::from_millis(500), &[]);
+    assert!(c.servo_in_failsafe(3));
+    assert!(commands(&mut c).contains(&(3, Goal::Brake)));
+}
+
 fn command_long(command: MavCmd, params: [f32; 7], target: (u8, u8)) -> MavMessage {
     MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
         param1: params[0],

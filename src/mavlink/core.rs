@@ -20,7 +20,10 @@
 //!   failsafe action, announced once for the bridge; the first output message ends it for the
 //!   servos it carries. Output messages that keep coming without a servo's channel for the
 //!   timeout: that servo takes its failsafe action, announced once for the servo, until a
-//!   message carries its channel again.
+//!   message carries its channel again. A DO_SET_SERVO or DO_SET_ACTUATOR that moves a servo
+//!   ends its failsafe like a message carrying its channel. A servo with an `actuator` key
+//!   whose channel no output message has ever carried is driven by commands alone: only the
+//!   stream's failsafe applies to it.
 //! - The autopilot's HEARTBEAT is relayed to the ground-station link (`[mavlink] gcs`), so
 //!   that QGroundControl, which creates a vehicle only from an autopilot's HEARTBEAT, shows
 //!   the bridge's messages there.
@@ -88,6 +91,8 @@ struct ServoSlot {
     failsafe: bool,
     /// Its channel's absence has been announced (once per absence).
     missing_announced: bool,
+    /// Some output message has carried its channel.
+    ever_carried: bool,
 }
 
 /// See the module docs.
@@ -134,6 +139,7 @@ impl BridgeCore {
                 carried_at: None,
                 failsafe: false,
                 missing_announced: false,
+                ever_carried: false,
             })
             .collect();
         Self {
@@ -235,11 +241,11 @@ impl BridgeCore {
             return;
         }
         if let MavMessage::COMMAND_LONG(cmd) = msg {
-            self.handle_command(link, from, &Command::from_long(cmd));
+            self.handle_command(link, from, &Command::from_long(cmd), now);
             return;
         }
         if let MavMessage::COMMAND_INT(cmd) = msg {
-            self.handle_command(link, from, &Command::from_int(cmd));
+            self.handle_command(link, from, &Command::from_int(cmd), now);
             return;
         }
         if let MavMessage::COMMAND_ACK(ack) = msg {
@@ -312,6 +318,7 @@ impl BridgeCore {
                 continue;
             }
             slot.carried_at = Some(now);
+            slot.ever_carried = true;
             slot.failsafe = false;
             if std::mem::take(&mut slot.missing_announced) {
                 self.event(BridgeEvent::ChannelBack { servo: i, channel }, now);
@@ -334,6 +341,15 @@ impl BridgeCore {
         }
     }
 
+    /// A command (DO_SET_SERVO, DO_SET_ACTUATOR) moves servo `i`: like an output message
+    /// carrying its channel, it ends the servo's failsafe and restarts the watch for it.
+    fn command_override(&mut self, i: usize, command: Goal, now: Instant) {
+        let slot = &mut self.servos[i];
+        slot.carried_at = Some(now);
+        slot.failsafe = false;
+        self.command(i, command);
+    }
+
     fn command(&mut self, servo: usize, command: Goal) {
         let slot = &mut self.servos[servo];
         if slot.last_command != Some(command) {
@@ -342,7 +358,7 @@ impl BridgeCore {
         }
     }
 
-    fn handle_command(&mut self, link: LinkId, from: (u8, u8), cmd: &Command) {
+    fn handle_command(&mut self, link: LinkId, from: (u8, u8), cmd: &Command, now: Instant) {
         let Some(system_id) = self.system_id else {
             return;
         };
@@ -351,8 +367,8 @@ impl BridgeCore {
             return;
         }
         let result = match cmd.command {
-            MavCmd::MAV_CMD_DO_SET_SERVO => self.do_set_servo(cmd.params[0], cmd.params[1]),
-            MavCmd::MAV_CMD_DO_SET_ACTUATOR => self.do_set_actuator(&cmd.params),
+            MavCmd::MAV_CMD_DO_SET_SERVO => self.do_set_servo(cmd.params[0], cmd.params[1], now),
+            MavCmd::MAV_CMD_DO_SET_ACTUATOR => self.do_set_actuator(&cmd.params, now),
             _ => MavResult::MAV_RESULT_UNSUPPORTED,
         };
         if how == Handling::Broadcast && result != MavResult::MAV_RESULT_ACCEPTED {
@@ -376,7 +392,7 @@ impl BridgeCore {
     /// MAV_CMD_DO_SET_SERVO: param 1 = output channel, param 2 = PWM in µs. Denied, and
     /// nothing moves, unless the channel has a servo and the PWM is inside the PWM range of
     /// every servo on it: a pulse the servo would only hold on is not a command carried out.
-    fn do_set_servo(&mut self, channel: f32, us: f32) -> MavResult {
+    fn do_set_servo(&mut self, channel: f32, us: f32, now: Instant) -> MavResult {
         let valid = (1.0..=32.0).contains(&channel) && (0.0..=65535.0).contains(&us);
         if !valid {
             return MavResult::MAV_RESULT_DENIED;
@@ -397,7 +413,7 @@ impl BridgeCore {
         }
         for (i, position) in positions {
             self.servos[i].override_latch = Some(self.channels[usize::from(channel)]);
-            self.command(i, Goal::Position(position));
+            self.command_override(i, Goal::Position(position), now);
         }
         MavResult::MAV_RESULT_ACCEPTED
     }
@@ -405,7 +421,7 @@ impl BridgeCore {
     /// MAV_CMD_DO_SET_ACTUATOR: params 1–6 = −1…+1 for actuators 1–6 of the set in param 7
     /// (set 0 = actuators 1–6, set 1 = 7–12, …); NaN leaves an actuator as it is. A value
     /// outside −1…+1 (the spec's bounds) denies the whole command, and nothing moves.
-    fn do_set_actuator(&mut self, params: &[f32; 7]) -> MavResult {
+    fn do_set_actuator(&mut self, params: &[f32; 7], now: Instant) -> MavResult {
         let index = params[6];
         if !index.is_finite() || !(0.0..=20.0).contains(&index) {
             return MavResult::MAV_RESULT_DENIED;
@@ -435,7 +451,7 @@ impl BridgeCore {
                 };
                 let channel = usize::from(self.servos[i].channel);
                 self.servos[i].override_latch = Some(self.channels.get(channel).copied().flatten());
-                self.command(i, command);
+                self.command_override(i, command, now);
             }
         }
         if matched {
@@ -610,7 +626,7 @@ impl BridgeCore {
             let missing = slot
                 .carried_at
                 .is_some_and(|at| now.duration_since(at) >= timeout);
-            if !missing || slot.missing_announced {
+            if !missing || slot.missing_announced || self.commanded_only(i) {
                 continue;
             }
             let channel = slot.channel;
@@ -625,6 +641,12 @@ impl BridgeCore {
                 now,
             );
         }
+    }
+
+    /// A servo with an `actuator` key whose channel no output message has carried is driven
+    /// by DO_SET_ACTUATOR alone: its channel is not missing, it was never there.
+    fn commanded_only(&self, i: usize) -> bool {
+        self.cfg.servos[i].actuator.is_some() && !self.servos[i].ever_carried
     }
 
     /// Servo `i` takes its failsafe action (once: a servo already in failsafe keeps it).
@@ -659,7 +681,9 @@ impl BridgeCore {
         if let Some(last) = self.last_output_at.filter(|_| !self.stream_failsafe) {
             let timeout = self.failsafe_timeout();
             t = t.min(last + timeout);
-            let watched = self.servos.iter().filter(|s| !s.missing_announced);
+            let watched = (0..self.servos.len())
+                .filter(|i| !self.servos[*i].missing_announced && !self.commanded_only(*i))
+                .map(|i| &self.servos[i]);
             if let Some(at) = watched.filter_map(|s| s.carried_at).min() {
                 t = t.min(at + timeout);
             }
