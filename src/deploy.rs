@@ -11,7 +11,7 @@
 //! sudo useradd --system --user-group --groups dialout --no-create-home \
 //!      --shell /usr/sbin/nologin lj9da
 //! lj9da-bridge deploy udev | sudo tee /etc/udev/rules.d/99-lj9da-bridge.rules
-//! sudo udevadm control --reload-rules && sudo udevadm trigger
+//! sudo udevadm control --reload-rules && sudo udevadm trigger --action=add --subsystem-match=usb-serial
 //! lj9da-bridge deploy systemd | sudo tee /etc/systemd/system/lj9da-bridge.service
 //! sudo systemctl daemon-reload && sudo systemctl enable --now lj9da-bridge
 //! journalctl -u lj9da-bridge -f        # the bridge's log
@@ -153,13 +153,14 @@ pub fn udev_rule() -> String {
 # bus. These rules set it to 1 ms whenever such an adapter is plugged in. FTDI chips:
 {chips}
 # The first rule covers every adapter the ftdi_sio driver takes (also other vendor IDs);
-# the second is the same for the tty of the listed chips.
+# the second is the same for the tty of the listed chips. They also match \"change\", the
+# event a plain `udevadm trigger` sends, so an adapter already plugged in is covered too.
 #
 # Install: lj9da-bridge deploy udev | sudo tee {UDEV_RULE_PATH}
-#          sudo udevadm control --reload-rules && sudo udevadm trigger
+#          sudo udevadm control --reload-rules && sudo udevadm trigger --action=add --subsystem-match=usb-serial
 # Check:   cat /sys/bus/usb-serial/devices/ttyUSB0/latency_timer   (should print 1)
-ACTION==\"add\", SUBSYSTEM==\"usb-serial\", DRIVER==\"ftdi_sio\", ATTR{{latency_timer}}=\"1\"
-ACTION==\"add\", SUBSYSTEM==\"tty\", KERNEL==\"ttyUSB[0-9]*\", ATTRS{{idVendor}}==\"0403\", ATTRS{{idProduct}}==\"{pids}\", ATTR{{device/latency_timer}}=\"1\"
+ACTION==\"add|change\", SUBSYSTEM==\"usb-serial\", DRIVER==\"ftdi_sio\", ATTR{{latency_timer}}=\"1\"
+ACTION==\"add|change\", SUBSYSTEM==\"tty\", KERNEL==\"ttyUSB[0-9]*\", ATTRS{{idVendor}}==\"0403\", ATTRS{{idProduct}}==\"{pids}\", ATTR{{device/latency_timer}}=\"1\"
 ",
         chips = chips.join("\n"),
         pids = pids.join("|"),
@@ -266,7 +267,7 @@ pub fn latency_fix(tty: &str, ms: u32) -> String {
         "replies reach the bridge up to {ms} ms late, which ruins half-duplex turnaround. \
          Fix it now:\n  echo 1 | sudo tee /sys/bus/usb-serial/devices/{tty}/latency_timer\n\
          and for good, with the udev rule:\n  lj9da-bridge deploy udev | sudo tee {UDEV_RULE_PATH}\n  \
-         sudo udevadm control --reload-rules && sudo udevadm trigger\n\
+         sudo udevadm control --reload-rules && sudo udevadm trigger --action=add --subsystem-match=usb-serial\n\
          (or live with it: turnaround_ms = {} in this bus's [[bus]] table, at the cost of a slower bus)",
         ms + 4
     )

@@ -112,6 +112,9 @@ fn main() -> ExitCode {
             Ok(cfg) => {
                 println!("{}: ok", config.display());
                 print!("{}", cfg.resolved_table());
+                for warning in cfg.warnings() {
+                    println!("\n{warning}");
+                }
                 ExitCode::SUCCESS
             }
             Err(code) => code,

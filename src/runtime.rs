@@ -400,6 +400,14 @@ pub async fn run(
                         t.text.to_str().unwrap_or("").to_string(),
                     );
                 }
+                let header = match out.sender {
+                    Some((system, component)) => MavHeader {
+                        system_id: u32::from(system),
+                        component_id: component,
+                        sequence: 0,
+                    },
+                    None => header,
+                };
                 for (i, link) in links.iter().enumerate() {
                     if out.link.is_none_or(|l| l == i)
                         && let Err(e) = link.send(&header, &out.message).await

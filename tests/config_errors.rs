@@ -500,6 +500,27 @@ fn telemetry_and_bridge_values_are_checked() {
     let text = format!("{GOOD}\n[telemetry]\nrate_hz = 100.0\n");
     let e = refused(&text, "rate_hz", "rate_hz", "100 Hz is outside (0, 50] Hz");
     assert_eq!(e.scope(), Some("[telemetry]"));
+    let text = format!("{GOOD}\n[telemetry]\nnamed_values = [\"pos\", \"rpm\"]\n");
+    refused(
+        &text,
+        "named_values",
+        "named_values",
+        "\"rpm\" is not a quantity",
+    );
+    let text = format!("{GOOD}\n[telemetry]\nesc_index_base = 256\n");
+    refused(
+        &text,
+        "esc_index_base",
+        "esc_index_base",
+        "256 is outside 0–255",
+    );
+    let text = format!("{GOOD}\n[telemetry]\nesc_status_hz = 0\n");
+    refused(
+        &text,
+        "esc_status_hz",
+        "esc_status_hz",
+        "0 Hz is outside (0, 50] Hz",
+    );
     let text = format!("{GOOD}\n[bridge]\non_exit = \"explode\"\n");
     refused(
         &text,

@@ -1,6 +1,6 @@
 //! The files of a service installation: the systemd unit and the udev rule.
 
-use lj9da_bridge::deploy::{DEFAULT_BINARY, DEFAULT_CONFIG, systemd_unit, udev_rule};
+use lj9da_bridge::deploy::{DEFAULT_BINARY, DEFAULT_CONFIG, latency_fix, systemd_unit, udev_rule};
 use std::path::Path;
 
 /// The unit's `[Section]` → `key=value` lines (comments and blank lines skipped); panics on
@@ -78,7 +78,7 @@ fn the_udev_rule_sets_ftdi_latency_timers_to_1_ms() {
         .collect();
     assert_eq!(
         rules[0],
-        r#"ACTION=="add", SUBSYSTEM=="usb-serial", DRIVER=="ftdi_sio", ATTR{latency_timer}="1""#
+        r#"ACTION=="add|change", SUBSYSTEM=="usb-serial", DRIVER=="ftdi_sio", ATTR{latency_timer}="1""#
     );
     assert!(rules[1].contains(r#"ATTRS{idVendor}=="0403""#));
     assert!(rules[1].contains(r#"ATTRS{idProduct}=="6001|6010|6011|6014|6015""#));
@@ -115,4 +115,27 @@ fn the_systemd_unit_grants_real_time_scheduling_at_the_bus_threads_priority_and_
         caps[0].split_whitespace().any(|c| c == "CAP_SYS_NICE"),
         "{unit}"
     );
+
+fn the_udev_rule_applies_to_an_adapter_already_plugged_in() {
+    // `udevadm trigger` sends "change" events unless told otherwise: a rule for "add" only
+    // would leave an adapter plugged in before the rule was installed at 16 ms.
+    let rule = udev_rule();
+    for r in rule.lines().filter(|l| l.starts_with("ACTION")) {
+        assert!(r.starts_with(r#"ACTION=="add|change""#), "{r}");
+    }
+    // And every install instruction replays "add" for the USB-serial devices.
+    for text in [rule.as_str(), latency_fix("ttyUSB0", 16).as_str()] {
+        let triggers: Vec<&str> = text
+            .lines()
+            .filter(|l| l.contains("sudo udevadm trigger"))
+            .collect();
+        assert!(!triggers.is_empty(), "{text}");
+        for t in triggers {
+            assert!(
+                t.trim_end()
+                    .ends_with("udevadm trigger --action=add --subsystem-match=usb-serial"),
+                "{t}"
+            );
+        }
+    }
 }

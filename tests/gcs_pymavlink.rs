@@ -141,3 +141,113 @@ async fn pymavlink_sees_the_bridge_heartbeat_and_servo_telemetry() {
         );
     }
 }
+
+const VEHICLE_LISTENER: &str = r#"
+import os, sys, time
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil
+port, seconds = int(sys.argv[1]), float(sys.argv[2])
+m = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="common")
+seen = set()
+end = time.time() + seconds
+while time.time() < end:
+    msg = m.recv_match(type="HEARTBEAT", blocking=True, timeout=0.2)
+    if msg is None:
+        continue
+    invalid = msg.autopilot == mavutil.mavlink.MAV_AUTOPILOT_INVALID
+    seen.add((msg.get_srcSystem(), msg.get_srcComponent(), "invalid" if invalid else "autopilot"))
+for s in sorted(seen):
+    print("heartbeat", *s)
+"#;
+
+/// QGroundControl creates a vehicle only from the HEARTBEAT of an autopilot (component 1,
+/// autopilot field not INVALID): the ground-station link carries the autopilot's, relayed, as
+/// well as the bridge's own.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_ground_station_link_carries_an_autopilot_heartbeat_for_qgroundcontrol() {
+    let python = tokio::task::spawn_blocking(python).await.unwrap();
+    let port = free_udp_port();
+    let chain = Chain::start_with(MAPPING, true, Some(port)).await;
+    let listener = tokio::task::spawn_blocking(move || {
+        Command::new(&python)
+            .args(["-c", VEHICLE_LISTENER, &port.to_string(), "4"])
+            .output()
+    });
+    let out = tokio::time::timeout(Duration::from_secs(60), listener)
+        .await
+        .expect("pymavlink listener finished")
+        .unwrap()
+        .expect("pymavlink listener ran");
+    chain.stop().await;
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "listener failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.lines().any(|l| l == "heartbeat 1 1 autopilot"),
+        "no autopilot heartbeat on the GCS link: {stdout}"
+    );
+    assert!(
+        stdout.lines().any(|l| l == "heartbeat 1 140 invalid"),
+        "{stdout}"
+    );
+}
+
+const COMMAND_SENDER: &str = r#"
+import os, sys, time
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil
+port, seconds = int(sys.argv[1]), float(sys.argv[2])
+m = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="common", source_system=255, source_component=190)
+end = time.time() + seconds
+# The bridge's address is learned from its first message.
+while time.time() < end:
+    msg = m.recv_match(type="HEARTBEAT", blocking=True, timeout=0.2)
+    if msg is not None and msg.get_srcComponent() == 140:
+        break
+mav = mavutil.mavlink
+tests = [
+    (mav.MAV_CMD_DO_SET_SERVO, (1, 1600, 0, 0), 0),
+    (mav.MAV_CMD_DO_REPOSITION, (0, 0, 0, 0), 0),
+]
+for command, params, frame in tests:
+    answer = None
+    for attempt in range(5):
+        m.mav.command_int_send(1, 140, frame, command, 0, 0, *params, 0, 0, 0.0)
+        ack = m.recv_match(type="COMMAND_ACK", blocking=True, timeout=1.0)
+        if ack is not None and ack.command == command:
+            answer = ack.result
+            break
+    print("ack", command, answer)
+"#;
+
+/// A ground station sends COMMAND_INT to the bridge and gets a COMMAND_ACK for each, so it
+/// neither retries nor times out.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn command_int_to_the_bridge_is_answered() {
+    let python = tokio::task::spawn_blocking(python).await.unwrap();
+    let port = free_udp_port();
+    let chain = Chain::start_with(MAPPING, true, Some(port)).await;
+    let sender = tokio::task::spawn_blocking(move || {
+        Command::new(&python)
+            .args(["-c", COMMAND_SENDER, &port.to_string(), "10"])
+            .output()
+    });
+    let out = tokio::time::timeout(Duration::from_secs(60), sender)
+        .await
+        .expect("pymavlink sender finished")
+        .unwrap()
+        .expect("pymavlink sender ran");
+    chain.stop().await;
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "sender failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // MAV_CMD_DO_SET_SERVO (183) ACCEPTED (0); MAV_CMD_DO_REPOSITION (192) UNSUPPORTED (3).
+    assert!(stdout.lines().any(|l| l == "ack 183 0"), "{stdout}");
+    assert!(stdout.lines().any(|l| l == "ack 192 3"), "{stdout}");
+}

@@ -18,8 +18,20 @@ pub const DEFAULT_AUTOPILOT_COMPONENT_ID: u8 = 1;
 pub const DEFAULT_OUTPUT_RATE_HZ: f32 = 50.0;
 /// How long without outputs before each servo's failsafe action, unless the file sets another.
 pub const DEFAULT_FAILSAFE_TIMEOUT_MS: u32 = 500;
-/// The telemetry rate unless the file sets another.
-pub const DEFAULT_TELEMETRY_RATE_HZ: f32 = 5.0;
+/// How often NAMED_VALUE_FLOAT values are looked at unless the file sets another: a value
+/// goes out when it has changed, and at least every [`NAMED_VALUE_REFRESH_S`] seconds.
+pub const DEFAULT_TELEMETRY_RATE_HZ: f32 = 1.0;
+/// A NAMED_VALUE_FLOAT that has not changed is sent again after this long, for a ground
+/// station that connects late.
+pub const NAMED_VALUE_REFRESH_S: u64 = 5;
+/// ESC_INFO's rate unless the file sets another (the rate MAVLink recommends for it).
+pub const DEFAULT_ESC_INFO_HZ: f32 = 1.0;
+/// ESC_STATUS's rate unless the file sets another (MAVLink meant it for fast links).
+pub const DEFAULT_ESC_STATUS_HZ: f32 = 1.0;
+/// The ESC index of the first servo unless the file sets another: above the motor ESCs an
+/// autopilot reports itself (ArduPilot up to 16, PX4 up to 8), whose entries share one table
+/// keyed by index in QGroundControl.
+pub const DEFAULT_ESC_INDEX_BASE: u8 = 16;
 
 const OUTPUT_RATE_MAX_HZ: f64 = 500.0;
 const TELEMETRY_RATE_MAX_HZ: f64 = 50.0;
@@ -91,15 +103,58 @@ pub struct MavlinkConfig {
     pub gcs: Option<String>,
 }
 
+/// A servo quantity that NAMED_VALUE_FLOAT can carry, named by its name suffix.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Quantity {
+    /// `pos`: position in mm.
+    Position,
+    /// `cur`: current in A.
+    Current,
+    /// `tmp`: temperature in °C.
+    Temperature,
+    /// `vlt`: voltage in V.
+    Voltage,
+}
+
+impl Quantity {
+    pub const ALL: [Quantity; 4] = [
+        Quantity::Position,
+        Quantity::Current,
+        Quantity::Temperature,
+        Quantity::Voltage,
+    ];
+
+    /// As written in `named_values` and at the end of a NAMED_VALUE_FLOAT name (`<label>_pos`).
+    pub const fn key(self) -> &'static str {
+        match self {
+            Quantity::Position => "pos",
+            Quantity::Current => "cur",
+            Quantity::Temperature => "tmp",
+            Quantity::Voltage => "vlt",
+        }
+    }
+}
+
 /// The `[telemetry]` table: what the bridge reports to the ground station, and how often.
+/// Everything the bridge sends is forwarded by the autopilot to every link, a 57 600-baud
+/// telemetry radio included: the defaults stay near 10 % of such a radio.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TelemetryConfig {
-    /// How often each servo's values are sent (default 5 Hz).
+    /// How often the NAMED_VALUE_FLOAT values are looked at (default 1 Hz); a value goes out
+    /// only when it has changed, or every [`NAMED_VALUE_REFRESH_S`] s.
     pub rate_hz: f32,
-    /// NAMED_VALUE_FLOAT per servo (position, current, temperature, voltage).
+    /// NAMED_VALUE_FLOAT per servo and quantity.
     pub named_value_float: bool,
+    /// Which quantities go out as NAMED_VALUE_FLOAT (default all four), in this order.
+    pub named_values: Vec<Quantity>,
     /// ESC_INFO + ESC_STATUS, in blocks of four servos (QGroundControl's ESC indicator).
     pub esc: bool,
+    /// ESC_INFO's rate (default 1 Hz).
+    pub esc_info_hz: f32,
+    /// ESC_STATUS's rate (default 1 Hz).
+    pub esc_status_hz: f32,
+    /// The ESC index of the first servo (default 16, clear of the motor ESCs).
+    pub esc_index_base: u8,
     /// STATUSTEXT for alarms, lost servos and failsafe.
     pub statustext: bool,
 }
@@ -109,7 +164,11 @@ impl Default for TelemetryConfig {
         TelemetryConfig {
             rate_hz: DEFAULT_TELEMETRY_RATE_HZ,
             named_value_float: true,
+            named_values: Quantity::ALL.to_vec(),
             esc: true,
+            esc_info_hz: DEFAULT_ESC_INFO_HZ,
+            esc_status_hz: DEFAULT_ESC_STATUS_HZ,
+            esc_index_base: DEFAULT_ESC_INDEX_BASE,
             statustext: true,
         }
     }
@@ -311,13 +370,59 @@ impl MavlinkConfig {
 impl TelemetryConfig {
     pub(crate) fn from_raw(raw: &RawTelemetry, scope: &Scope<'_>) -> Result<Self, ConfigError> {
         let default = TelemetryConfig::default();
-        Ok(TelemetryConfig {
-            rate_hz: match &raw.rate_hz {
-                None => default.rate_hz,
-                Some(r) => rate(scope, r, "rate_hz", TELEMETRY_RATE_MAX_HZ)?,
+        let rate_or = |value: &Option<Spanned<f64>>, key: &str, default: f32| match value {
+            None => Ok(default),
+            Some(r) => rate(scope, r, key, TELEMETRY_RATE_MAX_HZ),
+        };
+        let named_values = match &raw.named_values {
+            None => default.named_values.clone(),
+            Some(list) => {
+                let mut out = Vec::new();
+                for name in list.get_ref() {
+                    let key = name.get_ref().trim();
+                    let q = Quantity::ALL
+                        .into_iter()
+                        .find(|q| q.key() == key)
+                        .ok_or_else(|| {
+                            scope.error_on(
+                                name,
+                                "named_values",
+                                format!(
+                                    "\"{key}\" is not a quantity; use \"pos\" (position), \"cur\" (current), \"tmp\" (temperature) or \"vlt\" (voltage)"
+                                ),
+                            )
+                        })?;
+                    if !out.contains(&q) {
+                        out.push(q);
+                    }
+                }
+                out
+            }
+        };
+        let esc_index_base = match &raw.esc_index_base {
+            None => default.esc_index_base,
+            Some(b) => match u8::try_from(*b.get_ref()) {
+                Ok(base) => base,
+                Err(_) => {
+                    return Err(scope.error_on(
+                        b,
+                        "esc_index_base",
+                        format!(
+                            "{} is outside 0–255 (0 puts the first servo where QGroundControl shows ESC 1)",
+                            b.get_ref()
+                        ),
+                    ));
+                }
             },
+        };
+        Ok(TelemetryConfig {
+            rate_hz: rate_or(&raw.rate_hz, "rate_hz", default.rate_hz)?,
             named_value_float: raw.named_value_float.unwrap_or(default.named_value_float),
+            named_values,
             esc: raw.esc.unwrap_or(default.esc),
+            esc_info_hz: rate_or(&raw.esc_info_hz, "esc_info_hz", default.esc_info_hz)?,
+            esc_status_hz: rate_or(&raw.esc_status_hz, "esc_status_hz", default.esc_status_hz)?,
+            esc_index_base,
             statustext: raw.statustext.unwrap_or(default.statustext),
         })
     }

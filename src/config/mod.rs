@@ -14,9 +14,12 @@
 //! | | `component_id` | 140 (MAV_COMP_ID_SERVO1) | the bridge's component |
 //! | | `source` | `"SERVO_OUTPUT_RAW"` | or `"ACTUATOR_OUTPUT_STATUS"` (PX4) |
 //! | | `output_rate_hz` | 50 | requested rate; ArduPilot denies more than 0.8 × SCHED_LOOP_RATE |
-//! | | `failsafe_timeout_ms` | 500 | no outputs for this long → each servo's failsafe |
-//! | | `gcs` | none | an extra telemetry-only output, e.g. `udpout:127.0.0.1:14550` |
-//! | `[telemetry]` | `rate_hz` | 5 | per-servo telemetry rate |
+//! | | `failsafe_timeout_ms` | 500 | no message carrying a servo's channel for this long → its failsafe |
+//! | | `gcs` | none | an extra telemetry-only output (the autopilot's HEARTBEAT is relayed there), e.g. `udpout:127.0.0.1:14550` |
+//! | `[telemetry]` | `rate_hz` | 1 | how often NAMED_VALUE_FLOAT values are looked at; sent when changed, or every 5 s |
+//! | | `named_values` | `["pos", "cur", "tmp", "vlt"]` | which quantities go out as NAMED_VALUE_FLOAT |
+//! | | `esc_info_hz`, `esc_status_hz` | 1, 1 | the rates of ESC_INFO and ESC_STATUS |
+//! | | `esc_index_base` | 16 | the ESC index of the first servo (clear of motor ESCs) |
 //! | | `named_value_float`, `esc`, `statustext` | true | which carriers are sent |
 //! | `[bridge]` | `on_exit` | `"hold"` | `"hold"`, `"off"` or `"brake"` when the bridge stops |
 //! | `[[bus]]` | `name`, `port` | (required) | the bus's name and serial port |
@@ -49,11 +52,12 @@ mod raw;
 pub mod record;
 pub mod servo;
 mod table;
+pub mod warnings;
 
 pub use bridge::{BridgeSection, ExitAction};
 pub use bus::BusSection;
 pub use error::{ConfigError, Location};
-pub use mavlink::{MavlinkConfig, Source, TelemetryConfig};
+pub use mavlink::{MavlinkConfig, Quantity, Source, TelemetryConfig};
 pub use record::RecordSection;
 pub use servo::{FailsafeAction, PwmRange, ServoConfig};
 
@@ -120,6 +124,11 @@ impl Config {
     /// travel, failsafe, max force and goal time.
     pub fn resolved_table(&self) -> String {
         table::resolved_table(self)
+    }
+
+    /// What `check` warns about: valid, but not what the author expects (see [`warnings`]).
+    pub fn warnings(&self) -> Vec<String> {
+        warnings::warnings(self)
     }
 
     fn from_raw(raw: &RawFile, doc: Doc<'_>) -> Result<Config, ConfigError> {
@@ -304,7 +313,12 @@ mod tests {
         assert_eq!(m.failsafe_timeout_ms, 500);
         assert_eq!(m.gcs, None);
         assert_eq!(c.telemetry, TelemetryConfig::default());
-        assert_eq!(c.telemetry.rate_hz, 5.0);
+        // Defaults that fit a 57 600-baud telemetry radio, ESC indexes clear of motor ESCs.
+        assert_eq!(c.telemetry.rate_hz, 1.0);
+        assert_eq!(c.telemetry.esc_info_hz, 1.0);
+        assert_eq!(c.telemetry.esc_status_hz, 1.0);
+        assert_eq!(c.telemetry.esc_index_base, 16);
+        assert_eq!(c.telemetry.named_values, mavlink::Quantity::ALL.to_vec());
         assert_eq!(c.bridge.on_exit, ExitAction::Hold);
         assert_eq!(c.buses[0].baud, BaudRate::B115200);
         assert_eq!(c.buses[0].turnaround_ms, None);

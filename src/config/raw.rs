@@ -38,7 +38,11 @@ pub(crate) struct RawMavlink {
 pub(crate) struct RawTelemetry {
     pub rate_hz: Option<Spanned<f64>>,
     pub named_value_float: Option<bool>,
+    pub named_values: Option<Spanned<Vec<Spanned<String>>>>,
     pub esc: Option<bool>,
+    pub esc_info_hz: Option<Spanned<f64>>,
+    pub esc_status_hz: Option<Spanned<f64>>,
+    pub esc_index_base: Option<Spanned<i64>>,
     pub statustext: Option<bool>,
 }
 

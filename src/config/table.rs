@@ -24,17 +24,26 @@ pub(super) fn resolved_table(config: &Config) -> String {
         m.source, m.output_rate_hz, m.failsafe_timeout_ms
     ));
     let t = &config.telemetry;
+    let quantities: Vec<&str> = t.named_values.iter().map(|q| q.key()).collect();
+    let named = format!(
+        "NAMED_VALUE_FLOAT {} at {} Hz on change",
+        quantities.join("/"),
+        t.rate_hz
+    );
+    let esc = format!(
+        "ESC_INFO {} Hz + ESC_STATUS {} Hz from ESC index {}",
+        t.esc_info_hz, t.esc_status_hz, t.esc_index_base
+    );
     let carriers: Vec<&str> = [
-        (t.named_value_float, "NAMED_VALUE_FLOAT"),
-        (t.esc, "ESC_INFO/ESC_STATUS"),
+        (t.named_value_float, named.as_str()),
+        (t.esc, esc.as_str()),
         (t.statustext, "STATUSTEXT"),
     ]
     .into_iter()
     .filter_map(|(on, name)| on.then_some(name))
     .collect();
     out.push_str(&format!(
-        "telemetry: {} Hz: {} | extra GCS output: {} | on exit: {}\n\n",
-        t.rate_hz,
+        "telemetry: {} | extra GCS output: {} | on exit: {}\n\n",
         if carriers.is_empty() {
             "HEARTBEAT only".to_string()
         } else {

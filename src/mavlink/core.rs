@@ -4,17 +4,36 @@
 //!
 //! Rules:
 //! - Only output messages from the autopilot (configured, or learned from the first
-//!   autopilot HEARTBEAT) are obeyed; commands are obeyed when addressed to the bridge.
+//!   autopilot HEARTBEAT) are obeyed; commands (COMMAND_LONG or COMMAND_INT) are obeyed and
+//!   answered when addressed to the bridge, and broadcast ones as [`super::commands`] says.
 //! - Each output channel maps to its servos through the PWM-mode law of the mapping file; a
 //!   value that means "no output" makes the servo hold.
-//! - The output stream is requested with MAV_CMD_SET_MESSAGE_INTERVAL until it arrives; a
-//!   denied rate is retried lower, and the user is told which parameter limits it.
-//! - No output message for the failsafe timeout: each servo takes its failsafe action; the
-//!   first output message ends it. Both are announced.
-//! - HEARTBEAT at 1 Hz, servo telemetry at the configured rate, STATUSTEXT once per event.
+//! - The output stream is requested with MAV_CMD_SET_MESSAGE_INTERVAL until it arrives. A
+//!   denial that can only be about the rate (DENIED for a rate above 40 Hz, which ArduPilot
+//!   gives above 0.8 × SCHED_LOOP_RATE) is retried lower, and the user is told once which
+//!   parameter limits it. Any other refusal (DENIED at 40 Hz or less, UNSUPPORTED, FAILED, …)
+//!   means the autopilot does not provide the message: the requests stop and the user is told
+//!   once, in the log and by STATUSTEXT.
+//! - Failsafe is per servo, kept by the messages that carry its channel (SERVO_OUTPUT_RAW
+//!   port 0 carries channels 1–16, port 1 channels 17–32; ACTUATOR_OUTPUT_STATUS the channels
+//!   it marks active). No output message at all for the failsafe timeout: every servo takes its
+//!   failsafe action, announced once for the bridge; the first output message ends it for the
+//!   servos it carries. Output messages that keep coming without a servo's channel for the
+//!   timeout: that servo takes its failsafe action, announced once for the servo, until a
+//!   message carries its channel again. A DO_SET_SERVO or DO_SET_ACTUATOR that moves a servo
+//!   ends its failsafe like a message carrying its channel. A servo with an `actuator` key
+//!   whose channel no output message has ever carried is driven by commands alone: only the
+//!   stream's failsafe applies to it.
+//! - The autopilot's HEARTBEAT is relayed to the ground-station link (`[mavlink] gcs`), so
+//!   that QGroundControl, which creates a vehicle only from an autopilot's HEARTBEAT, shows
+//!   the bridge's messages there.
+//! - HEARTBEAT at 1 Hz, servo telemetry as [`super::schedule`] says, STATUSTEXT once per
+//!   event.
 
+use super::commands::{Command, Handling, handling};
 use super::health::{BridgeEvent, ServoReport};
 use super::outputs::{ChannelValues, from_actuator_output_status, from_servo_output_raw};
+use super::schedule::TelemetrySchedule;
 use super::statustext::{Throttle, describe, with_folded};
 use super::telemetry;
 use crate::bus::Goal;
@@ -30,16 +49,26 @@ use std::time::{Duration, Instant};
 pub type LinkId = usize;
 pub const AUTOPILOT_LINK: LinkId = 0;
 
+/// The extra link for a ground station (`[mavlink] gcs`), when there is one.
+pub const GCS_LINK: LinkId = 1;
+
 /// A message to send: on one link, or on every link.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Outgoing {
     pub message: MavMessage,
     pub link: Option<LinkId>,
+    /// `None`: the bridge's own message, sent with [`BridgeCore::header`]. `Some((system,
+    /// component))`: another's message relayed under its own ids (the autopilot's HEARTBEAT
+    /// on the ground-station link).
+    pub sender: Option<(u8, u8)>,
 }
 
-/// Rates tried, highest first, after the autopilot denies the requested one. ArduPilot denies
-/// anything above 0.8 × SCHED_LOOP_RATE (40 Hz on a stock 50 Hz Plane).
-const FALLBACK_RATES_HZ: [f32; 6] = [40.0, 25.0, 20.0, 10.0, 5.0, 2.0];
+/// Rates tried, highest first, after the autopilot denies the requested one for its rate:
+/// 0.8 × the SCHED_LOOP_RATE values ArduPilot is flown with (400, 300, 200, 100, 50 Hz).
+const FALLBACK_RATES_HZ: [f32; 5] = [320.0, 240.0, 160.0, 80.0, 40.0];
+/// The highest rate no ArduPilot denies for being too fast: 0.8 × its lowest SCHED_LOOP_RATE
+/// (50 Hz). A denial at this rate or below is about the message, not the rate.
+const NEVER_TOO_FAST_HZ: f32 = 40.0;
 const STREAM_REQUEST_PERIOD: Duration = Duration::from_secs(1);
 const HEARTBEAT_PERIOD: Duration = Duration::from_secs(1);
 const STATUSTEXT_HOLD_OFF: Duration = Duration::from_secs(3);
@@ -55,6 +84,15 @@ struct ServoSlot {
     /// until the autopilot's own output for the channel changes.
     override_latch: Option<Option<u16>>,
     last_command: Option<Goal>,
+    /// When a message last carried this servo's channel, or when the watch for it began (the
+    /// first output message, or the stream's return after a failsafe).
+    carried_at: Option<Instant>,
+    /// The servo has taken its failsafe action and not yet had its channel back.
+    failsafe: bool,
+    /// Its channel's absence has been announced (once per absence).
+    missing_announced: bool,
+    /// Some output message has carried its channel.
+    ever_carried: bool,
 }
 
 /// See the module docs.
@@ -68,16 +106,20 @@ pub struct BridgeCore {
     /// Latest value of every channel 1–32 from the autopilot.
     channels: [Option<u16>; 33],
     last_output_at: Option<Instant>,
-    failsafe: bool,
+    /// No output message at all for the failsafe timeout.
+    stream_failsafe: bool,
     /// The stream runs as asked: the autopilot accepted the rate, or it arrives at ≥ 70 % of it.
     stream_ok: bool,
     /// Output messages counted since `rate_window_start`, to measure the stream's rate.
     rate_window: (Instant, u32),
     requested_rate_hz: f32,
+    /// The SCHED_LOOP_RATE advice has been given.
+    rate_advice_given: bool,
+    /// The autopilot refused the source for another reason than its rate: asking stops.
+    source_refused: bool,
     next_stream_request: Instant,
     next_heartbeat: Instant,
-    next_telemetry: Instant,
-    esc_counter: u16,
+    telemetry: TelemetrySchedule,
     throttle: Throttle,
     commands: VecDeque<(usize, Goal)>,
     outgoing: VecDeque<Outgoing>,
@@ -86,6 +128,7 @@ pub struct BridgeCore {
 
 impl BridgeCore {
     pub fn new(cfg: Config, now: Instant) -> Self {
+        let servo_count = cfg.servos.len();
         let servos = cfg
             .servos
             .iter()
@@ -93,6 +136,10 @@ impl BridgeCore {
                 channel: s.channel,
                 override_latch: None,
                 last_command: None,
+                carried_at: None,
+                failsafe: false,
+                missing_announced: false,
+                ever_carried: false,
             })
             .collect();
         Self {
@@ -102,18 +149,19 @@ impl BridgeCore {
                 .autopilot_system_id
                 .map(|sys| (sys, cfg.mavlink.autopilot_component_id)),
             requested_rate_hz: cfg.mavlink.output_rate_hz,
+            rate_advice_given: false,
+            source_refused: false,
             servos,
             cfg,
             started: now,
             channels: [None; 33],
             last_output_at: None,
-            failsafe: false,
+            stream_failsafe: false,
             stream_ok: false,
             rate_window: (now, 0),
             next_stream_request: now,
             next_heartbeat: now,
-            next_telemetry: now,
-            esc_counter: 0,
+            telemetry: TelemetrySchedule::new(servo_count, now),
             throttle: Throttle::new(STATUSTEXT_HOLD_OFF),
             commands: VecDeque::new(),
             outgoing: VecDeque::new(),
@@ -134,8 +182,14 @@ impl BridgeCore {
         self.autopilot
     }
 
+    /// Some servo is in failsafe (the whole stream is missing, or its channel is).
     pub fn in_failsafe(&self) -> bool {
-        self.failsafe
+        self.servos.iter().any(|s| s.failsafe)
+    }
+
+    /// Servo `servo` (mapping order) is in failsafe.
+    pub fn servo_in_failsafe(&self, servo: usize) -> bool {
+        self.servos.get(servo).is_some_and(|s| s.failsafe)
     }
 
     /// The output rate being asked for now (lower than configured after a denial).
@@ -172,10 +226,26 @@ impl BridgeCore {
                 self.next_stream_request = now;
                 tracing::info!(system = from.0, component = from.1, "autopilot found");
             }
+            if link == AUTOPILOT_LINK
+                && Some(from) == self.autopilot
+                && self.cfg.mavlink.gcs.is_some()
+            {
+                // QGroundControl creates a vehicle only from an autopilot's HEARTBEAT: without
+                // it, the ground-station link would show nothing of the bridge.
+                self.outgoing.push_back(Outgoing {
+                    message: msg.clone(),
+                    link: Some(GCS_LINK),
+                    sender: Some(from),
+                });
+            }
             return;
         }
         if let MavMessage::COMMAND_LONG(cmd) = msg {
-            self.handle_command(link, from, cmd);
+            self.handle_command(link, from, &Command::from_long(cmd), now);
+            return;
+        }
+        if let MavMessage::COMMAND_INT(cmd) = msg {
+            self.handle_command(link, from, &Command::from_int(cmd), now);
             return;
         }
         if let MavMessage::COMMAND_ACK(ack) = msg {
@@ -185,7 +255,7 @@ impl BridgeCore {
                 && ack.command == MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
                 && to_us
             {
-                self.handle_interval_ack(ack.result);
+                self.handle_interval_ack(ack.result, now);
             }
             return;
         }
@@ -205,10 +275,12 @@ impl BridgeCore {
     fn handle_outputs(&mut self, values: &ChannelValues, now: Instant) {
         self.last_output_at = Some(now);
         self.measure_rate(now);
-        if self.failsafe {
-            self.failsafe = false;
+        let stream_back = self.stream_failsafe;
+        if stream_back {
+            self.stream_failsafe = false;
             self.event(BridgeEvent::FailsafeLeft, now);
         }
+        self.keep_servo_failsafes(values, stream_back, now);
         for (channel, us) in values.iter() {
             if let Some(slot) = self.channels.get_mut(usize::from(channel)) {
                 *slot = Some(us);
@@ -233,6 +305,27 @@ impl BridgeCore {
         }
     }
 
+    /// The servos whose channel `values` carries leave their failsafe; the watch for the
+    /// others begins now if it has not begun, or begins again after the stream's failsafe.
+    fn keep_servo_failsafes(&mut self, values: &ChannelValues, stream_back: bool, now: Instant) {
+        for i in 0..self.servos.len() {
+            let slot = &mut self.servos[i];
+            let channel = slot.channel;
+            if values.get(channel).is_none() {
+                if slot.carried_at.is_none() || stream_back {
+                    slot.carried_at = Some(now);
+                }
+                continue;
+            }
+            slot.carried_at = Some(now);
+            slot.ever_carried = true;
+            slot.failsafe = false;
+            if std::mem::take(&mut slot.missing_announced) {
+                self.event(BridgeEvent::ChannelBack { servo: i, channel }, now);
+            }
+        }
+    }
+
     /// Count the stream's messages over windows of two seconds; a window at ≥ 70 % of the
     /// requested rate means the stream runs as asked, whether or not an ACK said so.
     fn measure_rate(&mut self, now: Instant) {
@@ -248,6 +341,15 @@ impl BridgeCore {
         }
     }
 
+    /// A command (DO_SET_SERVO, DO_SET_ACTUATOR) moves servo `i`: like an output message
+    /// carrying its channel, it ends the servo's failsafe and restarts the watch for it.
+    fn command_override(&mut self, i: usize, command: Goal, now: Instant) {
+        let slot = &mut self.servos[i];
+        slot.carried_at = Some(now);
+        slot.failsafe = false;
+        self.command(i, command);
+    }
+
     fn command(&mut self, servo: usize, command: Goal) {
         let slot = &mut self.servos[servo];
         if slot.last_command != Some(command) {
@@ -256,18 +358,23 @@ impl BridgeCore {
         }
     }
 
-    fn handle_command(&mut self, link: LinkId, from: (u8, u8), cmd: &COMMAND_LONG_DATA) {
+    fn handle_command(&mut self, link: LinkId, from: (u8, u8), cmd: &Command, now: Instant) {
         let Some(system_id) = self.system_id else {
             return;
         };
-        if cmd.target_system != system_id || cmd.target_component != self.cfg.mavlink.component_id {
+        let how = handling(cmd, (system_id, self.cfg.mavlink.component_id));
+        if how == Handling::Ignore {
             return;
         }
         let result = match cmd.command {
-            MavCmd::MAV_CMD_DO_SET_SERVO => self.do_set_servo(cmd.param1, cmd.param2),
-            MavCmd::MAV_CMD_DO_SET_ACTUATOR => self.do_set_actuator(cmd),
+            MavCmd::MAV_CMD_DO_SET_SERVO => self.do_set_servo(cmd.params[0], cmd.params[1], now),
+            MavCmd::MAV_CMD_DO_SET_ACTUATOR => self.do_set_actuator(&cmd.params, now),
             _ => MavResult::MAV_RESULT_UNSUPPORTED,
         };
+        if how == Handling::Broadcast && result != MavResult::MAV_RESULT_ACCEPTED {
+            // None of ours: the autopilot's answer is the one that counts.
+            return;
+        }
         self.outgoing.push_back(Outgoing {
             message: MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
                 command: cmd.command,
@@ -278,11 +385,14 @@ impl BridgeCore {
                 target_component: from.1,
             }),
             link: Some(link),
+            sender: None,
         });
     }
 
-    /// MAV_CMD_DO_SET_SERVO: param 1 = output channel, param 2 = PWM in µs.
-    fn do_set_servo(&mut self, channel: f32, us: f32) -> MavResult {
+    /// MAV_CMD_DO_SET_SERVO: param 1 = output channel, param 2 = PWM in µs. Denied, and
+    /// nothing moves, unless the channel has a servo and the PWM is inside the PWM range of
+    /// every servo on it: a pulse the servo would only hold on is not a command carried out.
+    fn do_set_servo(&mut self, channel: f32, us: f32, now: Instant) -> MavResult {
         let valid = (1.0..=32.0).contains(&channel) && (0.0..=65535.0).contains(&us);
         if !valid {
             return MavResult::MAV_RESULT_DENIED;
@@ -291,30 +401,39 @@ impl BridgeCore {
         let targets: Vec<usize> = (0..self.servos.len())
             .filter(|i| self.servos[*i].channel == channel)
             .collect();
-        if targets.is_empty() {
+        let mut positions = Vec::with_capacity(targets.len());
+        for &i in &targets {
+            match self.cfg.servos[i].map_pwm(us) {
+                Some(position) => positions.push((i, position)),
+                None => return MavResult::MAV_RESULT_DENIED,
+            }
+        }
+        if positions.is_empty() {
             return MavResult::MAV_RESULT_DENIED;
         }
-        for i in targets {
-            let command = match self.cfg.servos[i].map_pwm(us) {
-                Some(position) => Goal::Position(position),
-                None => Goal::Hold,
-            };
+        for (i, position) in positions {
             self.servos[i].override_latch = Some(self.channels[usize::from(channel)]);
-            self.command(i, command);
+            self.command_override(i, Goal::Position(position), now);
         }
         MavResult::MAV_RESULT_ACCEPTED
     }
 
     /// MAV_CMD_DO_SET_ACTUATOR: params 1–6 = −1…+1 for actuators 1–6 of the set in param 7
-    /// (set 0 = actuators 1–6, set 1 = 7–12, …); NaN leaves an actuator as it is.
-    fn do_set_actuator(&mut self, cmd: &COMMAND_LONG_DATA) -> MavResult {
-        if !cmd.param7.is_finite() || cmd.param7 < 0.0 || cmd.param7 > 20.0 {
+    /// (set 0 = actuators 1–6, set 1 = 7–12, …); NaN leaves an actuator as it is. A value
+    /// outside −1…+1 (the spec's bounds) denies the whole command, and nothing moves.
+    fn do_set_actuator(&mut self, params: &[f32; 7], now: Instant) -> MavResult {
+        let index = params[6];
+        if !index.is_finite() || !(0.0..=20.0).contains(&index) {
             return MavResult::MAV_RESULT_DENIED;
         }
-        let set = cmd.param7.round() as u16;
-        let params = [
-            cmd.param1, cmd.param2, cmd.param3, cmd.param4, cmd.param5, cmd.param6,
-        ];
+        let set = index.round() as u16;
+        let params: [f32; 6] = std::array::from_fn(|k| params[k]);
+        if params
+            .iter()
+            .any(|v| !v.is_nan() && !(-1.0..=1.0).contains(v))
+        {
+            return MavResult::MAV_RESULT_DENIED;
+        }
         let mut matched = false;
         for (k, value) in params.into_iter().enumerate() {
             let actuator = set * 6 + k as u16 + 1;
@@ -332,7 +451,7 @@ impl BridgeCore {
                 };
                 let channel = usize::from(self.servos[i].channel);
                 self.servos[i].override_latch = Some(self.channels.get(channel).copied().flatten());
-                self.command(i, command);
+                self.command_override(i, command, now);
             }
         }
         if matched {
@@ -342,36 +461,52 @@ impl BridgeCore {
         }
     }
 
-    fn handle_interval_ack(&mut self, result: MavResult) {
-        if result == MavResult::MAV_RESULT_ACCEPTED {
-            self.stream_ok = true;
-            return;
+    fn handle_interval_ack(&mut self, result: MavResult, now: Instant) {
+        match result {
+            MavResult::MAV_RESULT_ACCEPTED => self.stream_ok = true,
+            MavResult::MAV_RESULT_IN_PROGRESS | MavResult::MAV_RESULT_TEMPORARILY_REJECTED => {}
+            MavResult::MAV_RESULT_DENIED if self.requested_rate_hz > NEVER_TOO_FAST_HZ => {
+                self.step_rate_down();
+            }
+            _ => self.refuse_source(result, now),
         }
-        if matches!(
-            result,
-            MavResult::MAV_RESULT_IN_PROGRESS | MavResult::MAV_RESULT_TEMPORARILY_REJECTED
-        ) {
-            return;
-        }
+    }
+
+    /// The autopilot denied the rate: ask again at once, lower, and say which parameter
+    /// limits it (once).
+    fn step_rate_down(&mut self) {
         let denied = self.requested_rate_hz;
-        let Some(next) = FALLBACK_RATES_HZ.into_iter().find(|r| *r < denied) else {
-            // Nothing lower to ask for: take the stream as it comes.
-            self.stream_ok = true;
-            return;
-        };
+        let next = FALLBACK_RATES_HZ
+            .into_iter()
+            .find(|r| *r < denied)
+            .unwrap_or(NEVER_TOO_FAST_HZ);
         self.requested_rate_hz = next;
-        let message = match self.cfg.mavlink.source {
-            Source::ServoOutputRaw => "SERVO_OUTPUT_RAW",
-            Source::ActuatorOutputStatus => "ACTUATOR_OUTPUT_STATUS",
-        };
-        let note = format!(
-            "the autopilot refused {message} at {denied} Hz ({result:?}); asking for {next} Hz. \
-             On ArduPilot the limit is 0.8 × SCHED_LOOP_RATE: raise SCHED_LOOP_RATE, or lower \
-             [mavlink] output_rate_hz"
-        );
-        self.notes.push(note);
-        // Ask again at once, at the lower rate.
+        if !std::mem::replace(&mut self.rate_advice_given, true) {
+            let message = self.cfg.mavlink.source.message_name();
+            self.notes.push(format!(
+                "the autopilot denied {message} at {denied} Hz; asking for less (now {next} Hz). \
+                 On ArduPilot the limit is 0.8 × SCHED_LOOP_RATE: raise SCHED_LOOP_RATE, or lower \
+                 [mavlink] output_rate_hz"
+            ));
+        }
         self.next_stream_request = self.started;
+    }
+
+    /// The autopilot does not provide the chosen source: stop asking, and say so once.
+    fn refuse_source(&mut self, result: MavResult, now: Instant) {
+        if std::mem::replace(&mut self.source_refused, true) {
+            return;
+        }
+        let source = self.cfg.mavlink.source;
+        let message = source.message_name();
+        let rate = self.requested_rate_hz;
+        self.notes.push(format!(
+            "the autopilot refused {message} at {rate} Hz ({result:?}), which is not a refusal \
+             of the rate: this autopilot does not provide {message}. The servos get no outputs; \
+             set [mavlink] source to a message it sends (ArduPilot: SERVO_OUTPUT_RAW; PX4: \
+             ACTUATOR_OUTPUT_STATUS or SERVO_OUTPUT_RAW)"
+        ));
+        self.event(BridgeEvent::SourceRefused { source }, now);
     }
 
     /// Something happened on a bus (or to the bridge): announce it.
@@ -386,7 +521,9 @@ impl BridgeCore {
             return;
         }
         let name = match event {
-            BridgeEvent::Servo { servo, .. } => self
+            BridgeEvent::Servo { servo, .. }
+            | BridgeEvent::ChannelMissing { servo, .. }
+            | BridgeEvent::ChannelBack { servo, .. } => self
                 .cfg
                 .servos
                 .get(*servo)
@@ -400,6 +537,7 @@ impl BridgeCore {
         self.outgoing.push_back(Outgoing {
             message: telemetry::statustext(severity, &text),
             link: None,
+            sender: None,
         });
     }
 
@@ -414,47 +552,25 @@ impl BridgeCore {
         }
         if now >= self.next_stream_request {
             self.next_stream_request = now + STREAM_REQUEST_PERIOD;
-            if !self.stream_ok {
+            if !self.stream_ok && !self.source_refused {
                 self.request_stream();
             }
         }
         if now >= self.next_heartbeat {
             self.next_heartbeat = now + HEARTBEAT_PERIOD;
-            let status = telemetry::system_status(reports, self.failsafe);
+            let status = telemetry::system_status(reports, self.in_failsafe());
             self.outgoing.push_back(Outgoing {
                 message: telemetry::heartbeat(status),
                 link: None,
+                sender: None,
             });
         }
-        if now >= self.next_telemetry {
-            let period = Duration::from_secs_f32(1.0 / self.cfg.telemetry.rate_hz.max(0.1));
-            self.next_telemetry = now + period;
-            self.push_telemetry(now, reports);
-        }
-    }
-
-    fn push_telemetry(&mut self, now: Instant, reports: &[ServoReport]) {
-        let since_boot = now.duration_since(self.started);
-        if self.cfg.telemetry.named_value_float {
-            let ms = since_boot.as_millis().min(u128::from(u32::MAX)) as u32;
-            for (servo, report) in self.cfg.servos.iter().zip(reports) {
-                for message in telemetry::named_values(&servo.label, report, ms) {
-                    self.outgoing.push_back(Outgoing {
-                        message,
-                        link: None,
-                    });
-                }
-            }
-        }
-        if self.cfg.telemetry.esc && !reports.is_empty() {
-            self.esc_counter = self.esc_counter.wrapping_add(1);
-            let us = since_boot.as_micros().min(u128::from(u64::MAX)) as u64;
-            for message in telemetry::esc_blocks(reports, us, self.esc_counter) {
-                self.outgoing.push_back(Outgoing {
-                    message,
-                    link: None,
-                });
-            }
+        for message in self.telemetry.due(&self.cfg, reports, now) {
+            self.outgoing.push_back(Outgoing {
+                message,
+                link: None,
+                sender: None,
+            });
         }
     }
 
@@ -477,32 +593,76 @@ impl BridgeCore {
                 ..Default::default()
             }),
             link: Some(AUTOPILOT_LINK),
+            sender: None,
         });
+    }
+
+    fn failsafe_timeout(&self) -> Duration {
+        Duration::from_millis(u64::from(self.cfg.mavlink.failsafe_timeout_ms))
     }
 
     fn check_failsafe(&mut self, now: Instant) {
         let Some(last) = self.last_output_at else {
             return;
         };
-        let timeout = Duration::from_millis(u64::from(self.cfg.mavlink.failsafe_timeout_ms));
-        if self.failsafe || now.duration_since(last) < timeout {
+        let timeout = self.failsafe_timeout();
+        let timeout_ms = self.cfg.mavlink.failsafe_timeout_ms;
+        if self.stream_failsafe {
             return;
         }
-        self.failsafe = true;
-        // The autopilot may have restarted and forgotten the rate: ask again until it runs.
-        self.stream_ok = false;
-        self.next_stream_request = now;
-        for i in 0..self.servos.len() {
-            let command = match self.cfg.servos[i].failsafe {
-                FailsafeAction::Hold => Goal::Hold,
-                FailsafeAction::Off => Goal::Off,
-                FailsafeAction::Brake => Goal::Brake,
-                FailsafeAction::Position(p) => Goal::Position(p),
-            };
-            self.command(i, command);
+        if now.duration_since(last) >= timeout {
+            self.stream_failsafe = true;
+            // The autopilot may have restarted and forgotten the rate: ask again until it runs.
+            self.stream_ok = false;
+            self.next_stream_request = now;
+            for i in 0..self.servos.len() {
+                self.enter_servo_failsafe(i);
+            }
+            self.event(BridgeEvent::FailsafeEntered { timeout_ms }, now);
+            return;
         }
-        let timeout_ms = self.cfg.mavlink.failsafe_timeout_ms;
-        self.event(BridgeEvent::FailsafeEntered { timeout_ms }, now);
+        for i in 0..self.servos.len() {
+            let slot = &self.servos[i];
+            let missing = slot
+                .carried_at
+                .is_some_and(|at| now.duration_since(at) >= timeout);
+            if !missing || slot.missing_announced || self.commanded_only(i) {
+                continue;
+            }
+            let channel = slot.channel;
+            self.servos[i].missing_announced = true;
+            self.enter_servo_failsafe(i);
+            self.event(
+                BridgeEvent::ChannelMissing {
+                    servo: i,
+                    channel,
+                    timeout_ms,
+                },
+                now,
+            );
+        }
+    }
+
+    /// A servo with an `actuator` key whose channel no output message has carried is driven
+    /// by DO_SET_ACTUATOR alone: its channel is not missing, it was never there.
+    fn commanded_only(&self, i: usize) -> bool {
+        self.cfg.servos[i].actuator.is_some() && !self.servos[i].ever_carried
+    }
+
+    /// Servo `i` takes its failsafe action (once: a servo already in failsafe keeps it).
+    fn enter_servo_failsafe(&mut self, i: usize) {
+        if std::mem::replace(&mut self.servos[i].failsafe, true) {
+            return;
+        }
+        // A command's override ends with the failsafe: the channel's return commands again.
+        self.servos[i].override_latch = None;
+        let command = match self.cfg.servos[i].failsafe {
+            FailsafeAction::Hold => Goal::Hold,
+            FailsafeAction::Off => Goal::Off,
+            FailsafeAction::Brake => Goal::Brake,
+            FailsafeAction::Position(p) => Goal::Position(p),
+        };
+        self.command(i, command);
     }
 
     /// The next servo command: (servo index in mapping order, command).
@@ -517,12 +677,18 @@ impl BridgeCore {
 
     /// When [`BridgeCore::handle_timeout`] must next be called.
     pub fn poll_timeout(&self) -> Instant {
-        let mut t = self.next_heartbeat.min(self.next_telemetry);
-        if let Some(last) = self.last_output_at.filter(|_| !self.failsafe) {
-            t = t
-                .min(last + Duration::from_millis(u64::from(self.cfg.mavlink.failsafe_timeout_ms)));
+        let mut t = self.next_heartbeat.min(self.telemetry.next_deadline());
+        if let Some(last) = self.last_output_at.filter(|_| !self.stream_failsafe) {
+            let timeout = self.failsafe_timeout();
+            t = t.min(last + timeout);
+            let watched = (0..self.servos.len())
+                .filter(|i| !self.servos[*i].missing_announced && !self.commanded_only(*i))
+                .map(|i| &self.servos[i]);
+            if let Some(at) = watched.filter_map(|s| s.carried_at).min() {
+                t = t.min(at + timeout);
+            }
         }
-        if !self.stream_ok {
+        if !self.stream_ok && !self.source_refused {
             t = t.min(self.next_stream_request);
         }
         if let Some(d) = self.throttle.next_deadline() {

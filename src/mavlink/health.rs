@@ -78,6 +78,23 @@ pub enum BridgeEvent {
         timeout_ms: u32,
     },
     FailsafeLeft,
+    /// The output messages keep coming, but none has carried this servo's channel for the
+    /// failsafe timeout (e.g. PX4 streams SERVO_OUTPUT_RAW port 0 only, and the servo is on
+    /// channel 17): the servo has taken its failsafe action.
+    ChannelMissing {
+        servo: usize,
+        channel: u8,
+        timeout_ms: u32,
+    },
+    /// A message carries the servo's channel again: its failsafe is over.
+    ChannelBack {
+        servo: usize,
+        channel: u8,
+    },
+    /// The autopilot refused to send the configured output message (not for its rate).
+    SourceRefused {
+        source: crate::config::Source,
+    },
     PortLost {
         bus: String,
     },

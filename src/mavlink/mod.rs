@@ -1,17 +1,21 @@
 //! The MAVLink side of the bridge: autopilot outputs in, servo health out.
 //!
 //! - [`outputs`]: SERVO_OUTPUT_RAW / ACTUATOR_OUTPUT_STATUS as channel values.
+//! - [`commands`]: COMMAND_LONG / COMMAND_INT in one form, and which are the bridge's.
 //! - [`core`]: the sans-IO bridge logic (autopilot, mapping, commands, failsafe, stream
 //!   requests, telemetry schedule).
+//! - [`schedule`]: when each telemetry carrier goes out, and values only on change.
 //! - [`telemetry`]: HEARTBEAT, NAMED_VALUE_FLOAT, ESC_INFO/ESC_STATUS and STATUSTEXT builders.
 //! - [`statustext`]: event texts, severities and the flood guard.
 //! - [`health`]: the servo reports and events the telemetry is made from.
 //! - [`reply_quality`]: a bus whose replies go bad while its servos stay online.
 
+pub mod commands;
 pub mod core;
 pub mod health;
 pub mod outputs;
 pub mod reply_quality;
+pub mod schedule;
 pub mod statustext;
 pub mod telemetry;
 

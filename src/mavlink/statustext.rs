@@ -49,6 +49,22 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
             format!("LJ9DA failsafe: no outputs for {timeout_ms} ms"),
         ),
         BridgeEvent::FailsafeLeft => (MAV_SEVERITY_NOTICE, "LJ9DA failsafe cleared".to_string()),
+        BridgeEvent::ChannelMissing {
+            channel,
+            timeout_ms,
+            ..
+        } => (
+            MAV_SEVERITY_WARNING,
+            format!("{servo_name}: failsafe, no ch{channel} for {timeout_ms} ms"),
+        ),
+        BridgeEvent::ChannelBack { channel, .. } => (
+            MAV_SEVERITY_NOTICE,
+            format!("{servo_name}: ch{channel} back, failsafe cleared"),
+        ),
+        BridgeEvent::SourceRefused { source } => (
+            MAV_SEVERITY_ERROR,
+            format!("LJ9DA: autopilot refuses {source}"),
+        ),
         BridgeEvent::RepliesDegraded { bus, percent } => (
             MAV_SEVERITY_WARNING,
             format!("LJ9DA bus {bus}: {percent}% replies bad"),
@@ -107,6 +123,10 @@ fn kind(event: &BridgeEvent) -> (Subject, u8) {
             },
         ),
         BridgeEvent::FailsafeEntered { .. } | BridgeEvent::FailsafeLeft => (Subject::Bridge, 10),
+        BridgeEvent::ChannelMissing { servo, .. } | BridgeEvent::ChannelBack { servo, .. } => {
+            (Subject::Servo(*servo), 6)
+        }
+        BridgeEvent::SourceRefused { .. } => (Subject::Bridge, 13),
         BridgeEvent::PortLost { bus } | BridgeEvent::PortBack { bus } => {
             (Subject::Bus(bus.clone()), 11)
         }

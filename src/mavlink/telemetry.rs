@@ -2,20 +2,12 @@
 //! operator sees"): HEARTBEAT, NAMED_VALUE_FLOAT, ESC_INFO + ESC_STATUS, STATUSTEXT.
 
 use super::health::{ServoReport, ServoState};
+use crate::config::Quantity;
 use mavlink::dialects::common::{
     ESC_INFO_DATA, ESC_STATUS_DATA, EscConnectionType, EscFailureFlags, HEARTBEAT_DATA,
     MavAutopilot, MavMessage, MavModeFlag, MavSeverity, MavState, MavType, NAMED_VALUE_FLOAT_DATA,
     STATUSTEXT_DATA,
 };
-
-/// The four NAMED_VALUE_FLOAT quantities of a servo and the suffix of each name:
-/// `<label>_pos` (mm), `<label>_cur` (A), `<label>_tmp` (°C), `<label>_vlt` (V).
-pub const QUANTITIES: [(&str, &str); 4] = [
-    ("position mm", "_pos"),
-    ("current A", "_cur"),
-    ("temperature °C", "_tmp"),
-    ("voltage V", "_vlt"),
-];
 
 /// NAMED_VALUE_FLOAT names have at most 10 characters.
 pub const MAX_NAME: usize = 10;
@@ -79,36 +71,66 @@ pub fn system_status<'a>(
     }
 }
 
-/// NAMED_VALUE_FLOAT for each quantity of a servo that has been measured, named after the
-/// servo's label (at most 6 characters, so every name fits MAVLink's 10).
+/// The value of one quantity in a report, if it has been measured.
+pub fn quantity(report: &ServoReport, q: Quantity) -> Option<f32> {
+    match q {
+        Quantity::Position => report.position_mm,
+        Quantity::Current => report.current_a,
+        Quantity::Temperature => report.temperature_c,
+        Quantity::Voltage => report.voltage_v,
+    }
+}
+
+/// One NAMED_VALUE_FLOAT named `<label>_<quantity>` (a label has at most 6 characters, so
+/// every name fits MAVLink's 10).
+pub fn named_value(label: &str, q: Quantity, value: f32, time_boot_ms: u32) -> MavMessage {
+    let name = format!("{label}_{}", q.key());
+    MavMessage::NAMED_VALUE_FLOAT(NAMED_VALUE_FLOAT_DATA {
+        time_boot_ms,
+        value,
+        name: name.as_str().into(),
+    })
+}
+
+/// NAMED_VALUE_FLOAT for each quantity of a servo that has been measured.
 pub fn named_values(label: &str, report: &ServoReport, time_boot_ms: u32) -> Vec<MavMessage> {
-    let values = [
-        report.position_mm,
-        report.current_a,
-        report.temperature_c,
-        report.voltage_v,
-    ];
-    QUANTITIES
-        .iter()
-        .zip(values)
-        .filter_map(|((_, suffix), value)| {
-            let value = value?;
-            let name = format!("{label}{suffix}");
-            Some(MavMessage::NAMED_VALUE_FLOAT(NAMED_VALUE_FLOAT_DATA {
-                time_boot_ms,
-                value,
-                name: name.as_str().into(),
-            }))
-        })
+    Quantity::ALL
+        .into_iter()
+        .filter_map(|q| Some(named_value(label, q, quantity(report, q)?, time_boot_ms)))
         .collect()
 }
 
-/// ESC_INFO and ESC_STATUS for every block of four servos, in that order per block.
+/// ESC_INFO and ESC_STATUS for every block of four servos, in that order per block, the first
+/// servo at ESC index 0.
 pub fn esc_blocks(reports: &[ServoReport], time_usec: u64, counter: u16) -> Vec<MavMessage> {
+    esc_info_blocks(reports, 0, time_usec, counter)
+        .into_iter()
+        .zip(esc_status_blocks(reports, 0, time_usec))
+        .flat_map(|(info, status)| [info, status])
+        .collect()
+}
+
+/// The ESC index of each block of four servos from `base`; a block past index 255 is left out.
+fn block_indexes(reports: &[ServoReport], base: u8) -> impl Iterator<Item = (u8, &[ServoReport])> {
+    reports
+        .chunks(4)
+        .enumerate()
+        .filter_map(move |(block, chunk)| {
+            let index = u8::try_from(usize::from(base) + block * 4).ok()?;
+            Some((index, chunk))
+        })
+}
+
+/// ESC_INFO for every block of four servos, the first servo at ESC index `base`.
+pub fn esc_info_blocks(
+    reports: &[ServoReport],
+    base: u8,
+    time_usec: u64,
+    counter: u16,
+) -> Vec<MavMessage> {
     let count = reports.len().min(u8::MAX as usize) as u8;
     let mut out = Vec::new();
-    for (block, chunk) in reports.chunks(4).enumerate() {
-        let index = (block * 4) as u8;
+    for (index, chunk) in block_indexes(reports, base) {
         let mut info = ESC_INFO_DATA {
             time_usec,
             counter,
@@ -116,11 +138,6 @@ pub fn esc_blocks(reports: &[ServoReport], time_usec: u64, counter: u16) -> Vec<
             count,
             connection_type: EscConnectionType::ESC_CONNECTION_TYPE_SERIAL,
             temperature: [i16::MAX; 4],
-            ..Default::default()
-        };
-        let mut status = ESC_STATUS_DATA {
-            time_usec,
-            index,
             ..Default::default()
         };
         for (i, r) in chunk.iter().enumerate() {
@@ -135,13 +152,28 @@ pub fn esc_blocks(reports: &[ServoReport], time_usec: u64, counter: u16) -> Vec<
                     .clamp(f32::from(i16::MIN), f32::from(i16::MAX - 1))
                     as i16;
             }
-            status.voltage[i] = r.voltage_v.unwrap_or(0.0);
-            status.current[i] = r.current_a.unwrap_or(0.0);
         }
         out.push(MavMessage::ESC_INFO(info));
-        out.push(MavMessage::ESC_STATUS(status));
     }
     out
+}
+
+/// ESC_STATUS for every block of four servos, the first servo at ESC index `base`.
+pub fn esc_status_blocks(reports: &[ServoReport], base: u8, time_usec: u64) -> Vec<MavMessage> {
+    block_indexes(reports, base)
+        .map(|(index, chunk)| {
+            let mut status = ESC_STATUS_DATA {
+                time_usec,
+                index,
+                ..Default::default()
+            };
+            for (i, r) in chunk.iter().enumerate() {
+                status.voltage[i] = r.voltage_v.unwrap_or(0.0);
+                status.current[i] = r.current_a.unwrap_or(0.0);
+            }
+            MavMessage::ESC_STATUS(status)
+        })
+        .collect()
 }
 
 /// ESC failure flags of a servo: over-temperature for the alarm and the error, stuck for a

@@ -1,0 +1,65 @@
+//! What `lj9da-bridge check` warns about: a mapping that is valid but will not do what its
+//! author expects with a given autopilot or ground station. Warnings never refuse a file.
+
+use super::{Config, Source};
+
+/// How many NAMED_VALUE_FLOAT names Mission Planner shows (`CurrentState.cs` keeps 20 slots,
+/// taken in order of arrival): a name past the 20th never appears in its Status tab.
+pub const MISSION_PLANNER_NAMED_VALUES: usize = 20;
+
+/// The first channel SERVO_OUTPUT_RAW carries with `port = 1`.
+const FIRST_PORT_1_CHANNEL: u8 = 17;
+
+/// Each warning as one paragraph that names the servo or key and says what to do.
+pub fn warnings(cfg: &Config) -> Vec<String> {
+    let mut out = Vec::new();
+    out.extend(px4_port_1_channels(cfg));
+    out.extend(mission_planner_names(cfg));
+    out
+}
+
+/// PX4 streams SERVO_OUTPUT_RAW for its first output driver only (MAV_CMD_SET_MESSAGE_INTERVAL
+/// for message 36 reaches the `_0` stream), and its `port` is the driver instance, not channels
+/// 17–32: a servo on channel 17 or above would never be commanded, only failsafed.
+fn px4_port_1_channels(cfg: &Config) -> Option<String> {
+    if cfg.mavlink.source != Source::ServoOutputRaw {
+        return None;
+    }
+    let high: Vec<String> = cfg
+        .servos
+        .iter()
+        .filter(|s| s.channel >= FIRST_PORT_1_CHANNEL)
+        .map(|s| format!("{} (channel {})", s.name, s.channel))
+        .collect();
+    if high.is_empty() {
+        return None;
+    }
+    Some(format!(
+        "warning: {} read channels 17–32 from SERVO_OUTPUT_RAW port 1. ArduPilot sends those, \
+         PX4 does not (it streams port 0 only, and its port numbers output drivers): on PX4 set \
+         [mavlink] source = \"ACTUATOR_OUTPUT_STATUS\", or these servos will only ever take \
+         their failsafe action.",
+        high.join(", ")
+    ))
+}
+
+/// Mission Planner shows at most 20 NAMED_VALUE_FLOAT names.
+fn mission_planner_names(cfg: &Config) -> Option<String> {
+    let t = &cfg.telemetry;
+    if !t.named_value_float {
+        return None;
+    }
+    let names = cfg.servos.len() * t.named_values.len();
+    if names <= MISSION_PLANNER_NAMED_VALUES {
+        return None;
+    }
+    let per_servo = t.named_values.len();
+    let fit = MISSION_PLANNER_NAMED_VALUES / cfg.servos.len().max(1);
+    Some(format!(
+        "warning: {} servos × {per_servo} quantities = {names} NAMED_VALUE_FLOAT names; Mission \
+         Planner shows the first {MISSION_PLANNER_NAMED_VALUES} only. Choose at most {fit} per \
+         servo with [telemetry] named_values (e.g. named_values = [\"pos\", \"tmp\"]); \
+         QGroundControl's ESC indicator (esc = true) still shows current, temperature and voltage.",
+        cfg.servos.len()
+    ))
+}
