@@ -115,7 +115,9 @@ fn the_systemd_unit_grants_real_time_scheduling_at_the_bus_threads_priority_and_
         caps[0].split_whitespace().any(|c| c == "CAP_SYS_NICE"),
         "{unit}"
     );
+}
 
+#[test]
 fn the_udev_rule_applies_to_an_adapter_already_plugged_in() {
     // `udevadm trigger` sends "change" events unless told otherwise: a rule for "add" only
     // would leave an adapter plugged in before the rule was installed at 16 ms.
