@@ -97,7 +97,7 @@ fn a_timer_that_cannot_be_lowered_warns_with_the_exact_fix() {
          echo 1 | sudo tee /sys/bus/usb-serial/devices/ttyUSB0/latency_timer\n\
          and for good, with the udev rule:\n  \
          lj9da-bridge deploy udev | sudo tee /etc/udev/rules.d/99-lj9da-bridge.rules\n  \
-         sudo udevadm control --reload-rules && sudo udevadm trigger\n\
+         sudo udevadm control --reload-rules && sudo udevadm trigger --action=add --subsystem-match=usb-serial\n\
          (or live with it: turnaround_ms = 20 in this bus's [[bus]] table, at the cost of a slower bus)"
     );
     assert!(
@@ -106,7 +106,9 @@ fn a_timer_that_cannot_be_lowered_warns_with_the_exact_fix() {
     assert!(
         fix.contains("lj9da-bridge deploy udev | sudo tee /etc/udev/rules.d/99-lj9da-bridge.rules")
     );
-    assert!(fix.contains("sudo udevadm control --reload-rules && sudo udevadm trigger"));
+    assert!(fix.contains(
+        "sudo udevadm control --reload-rules && sudo udevadm trigger --action=add --subsystem-match=usb-serial"
+    ));
     assert!(fix.contains("turnaround_ms = 20"));
     assert_eq!(tried.len(), 2, "{tried:?}");
     assert!(check.needs_attention());

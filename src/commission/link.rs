@@ -109,6 +109,10 @@ fn describe_expected(expected: ExpectedReply) -> String {
     }
 }
 
+/// How long the old rate stays in force after the last packet written at it (see
+/// [`Link::reopen`]).
+pub const REOPEN_SETTLE: Duration = Duration::from_millis(25);
+
 impl Link {
     /// Margin added to the computed wire time of ordinary transactions.
     pub const DEFAULT_MARGIN: Duration = Duration::from_millis(50);
@@ -135,15 +139,19 @@ impl Link {
         })
     }
 
-    /// Close the port and open it again at `baud` (after the servo was told to change rate).
+    /// Close the port and open it again at `baud` (after the servo was told to change rate),
+    /// [`REOPEN_SETTLE`] after the last write.
     pub async fn reopen(&mut self, baud: BaudRate) -> Result<(), LinkError> {
         if baud == self.baud && self.port.is_some() {
             return Ok(());
         }
-        // The last packet must leave the adapter at the old rate before the rate changes;
-        // the port is exclusive, so the old one is closed before the new one is opened.
+        // The last packet must leave the adapter at the old rate before the rate changes: a
+        // USB adapter may hold bytes for its latency timer (16 ms by default) after the kernel
+        // let them go, and a pseudo-terminal's reader may take as long to see them. The port
+        // is exclusive, so the old one is closed before the new one is opened.
         if let Some(mut old) = self.port.take() {
             let _ = old.flush().await;
+            tokio::time::sleep(REOPEN_SETTLE).await;
             drop(old);
         }
         self.decoder.clear();
