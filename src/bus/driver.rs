@@ -125,6 +125,31 @@ pub fn lock_memory() {
     }
 }
 
+/// The reply allowance of a bus whose port is a pseudo-terminal.
+pub const SIMULATED_TURNAROUND: Duration = Duration::from_millis(20);
+
+/// A port that is a pseudo-terminal leads to simulated servos, which cannot keep time on a
+/// busy computer: their replies cross the pseudo-terminal through a kernel worker thread that
+/// runs at normal priority, and, where real-time scheduling is refused, their own thread waits
+/// behind every other program. With the allowance of a real adapter the bridge would report
+/// them lost or their replies bad when nothing is wrong; such a bus gets
+/// [`SIMULATED_TURNAROUND`] (it costs time only when a reply really is missing), said once.
+fn widen_allowance_for_simulated_servos(mut cfg: BusConfig, port: &Path) -> BusConfig {
+    let pty = std::fs::canonicalize(port).is_ok_and(|p| p.starts_with("/dev/pts"));
+    if pty && cfg.turnaround < SIMULATED_TURNAROUND {
+        tracing::info!(
+            bus = %cfg.name,
+            "{} is a pseudo-terminal (simulated servos, whose replies a busy computer passes on \
+             late): reply allowance {} ms instead of {} ms",
+            port.display(),
+            SIMULATED_TURNAROUND.as_millis(),
+            cfg.turnaround.as_secs_f64() * 1e3
+        );
+        cfg.turnaround = SIMULATED_TURNAROUND;
+    }
+    cfg
+}
+
 /// The time slice the bus thread asks the scheduler for (the shortest Linux grants).
 const SCHED_SLICE: Duration = Duration::from_micros(100);
 
@@ -497,6 +522,7 @@ pub fn spawn_bus(cfg: BusConfig, port: PathBuf) -> BusHandle {
 /// the packets due were written, before the status is sent to watchers). It sees every
 /// telemetry sample, which a [`watch`] receiver cannot promise; it must be quick.
 pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver) -> BusHandle {
+    let cfg = widen_allowance_for_simulated_servos(cfg, &port);
     let name = cfg.name.clone();
     let master = BusMaster::new(cfg, Instant::now());
     let (status_tx, status_rx) = watch::channel(master.status());

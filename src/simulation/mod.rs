@@ -56,18 +56,12 @@ fn free_udp_port() -> std::io::Result<u16> {
 }
 
 /// Run the chain until Ctrl-C (or `seconds`). Returns the bridge's last view for a summary.
-/// The reply allowance of a simulated bus.
-const SIMULATED_TURNAROUND_MS: f32 = 20.0;
-
-/// Simulated servos cannot keep time on a busy computer: their replies cross a
-/// pseudo-terminal, whose bytes a kernel worker thread passes on at normal priority, and,
-/// where the system refuses real-time scheduling, their own thread waits for a CPU behind
-/// every other program. The bridge would report them lost or their replies bad when nothing
-/// is wrong, so their buses get a reply allowance of [`SIMULATED_TURNAROUND_MS`] (it costs
-/// time only when a reply really is missing), said once in the log.
-async fn widen_allowance_for_simulated_buses(cfg: &mut Config, sims: &[SimBus]) {
+/// Say once when the simulated servos run without real-time scheduling: beside busy programs
+/// they then answer late (the bridge allows for it on pseudo-terminals, see
+/// `bus::driver::SIMULATED_TURNAROUND`).
+async fn tell_realtime(sims: &[SimBus]) {
     let mut refused = false;
-    for (bus, sim) in cfg.buses.iter_mut().zip(sims) {
+    for sim in sims {
         let mut realtime = sim.realtime();
         for _ in 0..100 {
             if realtime.is_some() {
@@ -76,22 +70,14 @@ async fn widen_allowance_for_simulated_buses(cfg: &mut Config, sims: &[SimBus]) 
             tokio::time::sleep(Duration::from_millis(2)).await;
             realtime = sim.realtime();
         }
-        refused |= realtime != Some(true);
-        let widened = bus
-            .turnaround_ms
-            .unwrap_or(0.0)
-            .max(SIMULATED_TURNAROUND_MS);
-        bus.turnaround_ms = Some(widened);
+        refused |= realtime == Some(false);
     }
-    let scheduling = if refused {
-        "without real-time scheduling (this user may not use SCHED_FIFO)"
-    } else {
-        "with real-time scheduling"
-    };
-    tracing::info!(
-        "simulated servos run {scheduling}; their replies cross pseudo-terminals, which a busy \
-         computer serves late, so the bridge allows {SIMULATED_TURNAROUND_MS} ms for each reply"
-    );
+    if refused {
+        tracing::warn!(
+            "the simulated servos run without real-time scheduling (this user may not use \
+             SCHED_FIFO): on a busy computer they answer late"
+        );
+    }
 }
 
 pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
@@ -113,7 +99,7 @@ pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
         ports.insert(bus.name.clone(), sim.path());
         sims.push(sim);
     }
-    widen_allowance_for_simulated_buses(&mut cfg, &sims).await;
+    tell_realtime(&sims).await;
 
     let (stop_tx, stop_rx) = watch::channel(false);
     let mut autopilot_task = None;
