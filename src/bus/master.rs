@@ -92,6 +92,8 @@ pub struct BusMaster {
     port_open: bool,
     /// When goals arrive, so that no poll is started just before the next one.
     rhythm: GoalRhythm,
+    /// The window in which the messages of one autopilot tick are gathered: (opened, ends).
+    gather: Option<(Instant, Instant)>,
     /// Send a long packet with every commanded servo even if no goal changed.
     resend_all: bool,
     shutdown: Option<Shutdown>,
@@ -125,6 +127,7 @@ impl BusMaster {
             now,
             port_open: true,
             rhythm,
+            gather: None,
             resend_all: false,
             shutdown: None,
             changed: true,
@@ -162,6 +165,7 @@ impl BusMaster {
         self.counters.goals_received += 1;
         self.changed = true;
         if matches!(goal, Goal::Position(_)) {
+            self.gather_goal(now);
             self.rhythm.goal_at(now);
         }
         let s = &mut self.servos[i];
@@ -417,7 +421,7 @@ impl BusMaster {
     /// while a goal is expected soon, a position-only read that still fits, for the servo
     /// whose position was read longest ago.
     fn next_request(&self, at: Instant) -> Option<(usize, Transaction)> {
-        if self.gathering_until(at).is_some_and(|until| at < until) {
+        if at < self.gathering_until(at) {
             return None;
         }
         let due = |when: Option<Instant>| when.is_none_or(|t| t <= at);
@@ -452,13 +456,35 @@ impl BusMaster {
             .map(|i| (i, Transaction::Position))
     }
 
+    /// A goal came at `now`: the first after a quiet spell of [`BusConfig::tick_gather`]
+    /// opens a window of that length for the other messages of its tick; each message in the
+    /// window extends it by as much, up to twice that length from its opening. Goals that
+    /// never leave such a spell (a stream faster than the gathering) open none, so polls go on
+    /// between them.
+    fn gather_goal(&mut self, now: Instant) {
+        let gather = self.cfg.tick_gather;
+        self.gather = match self.gather {
+            Some((opened, ends)) if now < ends => {
+                Some((opened, (now + gather).min(opened + gather * 2)))
+            }
+            _ if self
+                .rhythm
+                .latest_goal()
+                .is_none_or(|latest| now.saturating_duration_since(latest) >= gather) =>
+            {
+                Some((now, now + gather))
+            }
+            other => other,
+        };
+    }
+
     /// Until when, seen at `at`, no request may start because the autopilot's tick is still
-    /// coming in: [`BusConfig::tick_gather`] after the latest goal; and, while the rhythm is
+    /// coming in: the gathering window ([`BusMaster::gather_goal`]); and, while the rhythm is
     /// known, until half a period after the tick began as long as a servo that had a goal in
-    /// the tick before has none in this one yet (a message of the tick is late). `None`: no
-    /// goal yet.
-    fn gathering_until(&self, at: Instant) -> Option<Instant> {
-        let gather = self.rhythm.latest_goal()? + self.cfg.tick_gather;
+    /// the tick before has none in this one yet (a message of the tick is late). Not after
+    /// `at` when nothing holds requests back.
+    fn gathering_until(&self, at: Instant) -> Instant {
+        let gather = self.gather.map_or(at, |(_, ends)| ends);
         let incomplete = self.rhythm.tick(at).and_then(|(start, period)| {
             let until = start + period / 2;
             let awaited = self.servos.iter().any(|s| {
@@ -467,7 +493,7 @@ impl BusMaster {
             });
             (awaited && at < until).then_some(until)
         });
-        Some(incomplete.map_or(gather, |until| until.max(gather)))
+        incomplete.map_or(gather, |until| until.max(gather))
     }
 
     /// How long transaction `tx` with servo `i` holds the bus: request and reply on the wire,
@@ -744,7 +770,7 @@ impl BusMaster {
             .flatten()
             .min()?;
         let at = next.max(self.now);
-        let at = at.max(self.gathering_until(at).unwrap_or(at));
+        let at = at.max(self.gathering_until(at));
         if self.next_request(at).is_some() {
             return Some(at);
         }

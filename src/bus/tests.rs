@@ -1901,3 +1901,18 @@ fn a_temperature_flag_seen_in_a_short_reply_makes_the_next_poll_read_the_tempera
         77
     );
 }
+
+#[test]
+fn goals_faster_than_the_gathering_do_not_starve_telemetry() {
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    let c0 = *rig.m.counters();
+    // A goal every 300 µs for a second: no quiet spell ever opens a gathering window after
+    // the first.
+    for k in 0..3333i16 {
+        rig.set_goal(1 + (k % 4) as u8, Goal::Position(MmCenti(k % 2000)));
+        rig.run(us(300));
+    }
+    let c = rig.m.counters();
+    let reads = (c.polls + c.motion_polls) - (c0.polls + c0.motion_polls);
+    assert!(reads >= 200, "{reads} telemetry reads in a second");
+}
