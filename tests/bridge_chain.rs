@@ -262,7 +262,31 @@ async fn an_overheating_servo_produces_one_warning_and_one_error() {
         })
         .await;
     // Let a few more seconds of telemetry pass: the servo stays hot and latched.
+    let latched = std::time::Instant::now();
     tokio::time::sleep(SECS(2)).await;
+    // Force is off, but the servo still answers: its temperature keeps reaching the ground
+    // station, as a NAMED_VALUE_FLOAT and in ESC_INFO (not "unknown").
+    let heard = chain.gcs.since(latched);
+    let named: Vec<f32> = heard
+        .iter()
+        .filter_map(|(_, _, m)| match m {
+            MavMessage::NAMED_VALUE_FLOAT(v) if v.name.to_str() == Ok("rudder_tmp") => {
+                Some(v.value)
+            }
+            _ => None,
+        })
+        .collect();
+    assert!(named.len() >= 5, "rudder_tmp after the error: {named:?}");
+    assert!(named.iter().all(|c| *c >= 80.0), "{named:?}");
+    let esc: Vec<i16> = heard
+        .iter()
+        .filter_map(|(_, _, m)| match m {
+            MavMessage::ESC_INFO(i) if i.index == 0 => Some(i.temperature[3]),
+            _ => None,
+        })
+        .collect();
+    assert!(esc.len() >= 5, "ESC_INFO after the error: {esc:?}");
+    assert!(esc.iter().all(|t| *t != i16::MAX && *t >= 8000), "{esc:?}");
     let texts: Vec<_> = chain
         .gcs
         .statustexts()
