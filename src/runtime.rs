@@ -60,7 +60,14 @@ pub struct BridgeView {
     pub autopilot: Option<(u8, u8)>,
     pub failsafe: bool,
     pub output_rate_hz: f32,
+    /// Each bus's status, in the order of the mapping file's `[[bus]]` tables.
+    pub buses: Vec<BusStatus>,
+    /// The latest STATUSTEXTs sent, oldest first (at most [`VIEW_TEXTS`]).
+    pub texts: Vec<String>,
 }
+
+/// How many of the latest STATUSTEXTs the view keeps.
+pub const VIEW_TEXTS: usize = 6;
 
 /// The running bridge's buses, in the order of the mapping file's `[[bus]]` tables, and where
 /// each servo lives.
@@ -121,6 +128,14 @@ impl Buses {
 
     fn reports(&self, cfg: &Config) -> (Vec<ServoReport>, Vec<ServoView>) {
         let statuses: Vec<BusStatus> = self.handles.iter().map(BusHandle::status).collect();
+        self.reports_of(cfg, &statuses)
+    }
+
+    fn reports_of(
+        &self,
+        cfg: &Config,
+        statuses: &[BusStatus],
+    ) -> (Vec<ServoReport>, Vec<ServoView>) {
         let mut reports = Vec::with_capacity(self.servo_at.len());
         let mut views = Vec::with_capacity(self.servo_at.len());
         for (i, (bus, id)) in self.servo_at.iter().enumerate() {
@@ -353,6 +368,7 @@ pub async fn run(
     }
 
     let mut view_at = Instant::now();
+    let mut texts = std::collections::VecDeque::with_capacity(VIEW_TEXTS);
     let mut pending_goals: Vec<Vec<(ServoId, crate::bus::Goal)>> =
         vec![Vec::new(); buses.handles.len()];
     let mut qualities: Vec<ReplyQuality> = buses
@@ -408,12 +424,15 @@ pub async fn run(
         }
         if let Some(header) = core.header() {
             while let Some(out) = core.poll_message() {
-                if let (Some(r), MavMessage::STATUSTEXT(t)) = (&record, &out.message) {
-                    r.event(
-                        None,
-                        t.severity as u8,
-                        t.text.to_str().unwrap_or("").to_string(),
-                    );
+                if let MavMessage::STATUSTEXT(t) = &out.message {
+                    let text = t.text.to_str().unwrap_or("").to_string();
+                    if let Some(r) = &record {
+                        r.event(None, t.severity as u8, text.clone());
+                    }
+                    if texts.len() == VIEW_TEXTS {
+                        texts.pop_front();
+                    }
+                    texts.push_back(text);
                 }
                 for (i, link) in links.iter().enumerate() {
                     if out.link.is_none_or(|l| l == i)
@@ -429,12 +448,15 @@ pub async fn run(
         }
         if let Some(view) = view.as_ref().filter(|_| view_at.elapsed() >= VIEW_PERIOD) {
             view_at = Instant::now();
-            let (_, servos) = buses.reports(&cfg);
+            let statuses: Vec<BusStatus> = buses.handles.iter().map(BusHandle::status).collect();
+            let (_, servos) = buses.reports_of(&cfg, &statuses);
             view.send_replace(BridgeView {
                 servos,
                 autopilot: core.autopilot(),
                 failsafe: core.in_failsafe(),
                 output_rate_hz: core.requested_rate_hz(),
+                buses: statuses,
+                texts: texts.iter().cloned().collect(),
             });
         }
     }
