@@ -370,6 +370,46 @@ fn quit_pressed() -> std::io::Result<bool> {
     Ok(false)
 }
 
+/// A full screen of text redrawn in place (the live view of `monitor`), with the terminal
+/// restored when it is dropped.
+pub struct TextScreen {
+    terminal: ratatui::DefaultTerminal,
+    _restore: Restore,
+}
+
+impl TextScreen {
+    pub fn open() -> std::io::Result<Self> {
+        let terminal = ratatui::try_init()?;
+        Ok(TextScreen {
+            terminal,
+            _restore: Restore,
+        })
+    }
+
+    /// Show `text` with the help line below it.
+    pub fn show(&mut self, text: &str) -> std::io::Result<()> {
+        self.terminal.draw(|frame| {
+            let [body, help] =
+                Layout::vertical([Constraint::Min(1), Constraint::Length(1)]).areas(frame.area());
+            frame.render_widget(Paragraph::new(text), body);
+            frame.render_widget(Paragraph::new("q: quit"), help);
+        })?;
+        Ok(())
+    }
+}
+
+/// Completes when `q`, Esc or Ctrl-C is pressed on a terminal in raw mode (looked for every
+/// 100 ms); never if the keyboard cannot be read.
+pub async fn quit_key() {
+    loop {
+        match quit_pressed() {
+            Ok(true) => return,
+            Ok(false) => tokio::time::sleep(Duration::from_millis(100)).await,
+            Err(_) => std::future::pending::<()>().await,
+        }
+    }
+}
+
 /// Show the live view until `q` is pressed (then return), or until the task is aborted or
 /// the bridge is gone.
 pub async fn show(mut view: watch::Receiver<BridgeView>) -> std::io::Result<()> {
