@@ -7,10 +7,12 @@
 //! tested without a terminal; [`show`] only draws it with `ratatui` on `crossterm`.
 //!
 //! Their cost: 38 crates the project did not build before (ratatui's four, crossterm,
-//! and small helpers such as `unicode-width`, `lru`, `strum`, `darling`). Adding them
-//! rebuilt the debug profile's dependencies in 460 s of CPU (1026 s on the clock) on the
-//! 2-core development machine while two other builds ran; that is paid once per clean
-//! build, and incremental builds of the project are unchanged. What they give back: a
+//! and small helpers such as `unicode-width`, `lru`, `strum`, `darling`). Built alone at
+//! this project's dependency optimisation level, ratatui with crossterm took 140 s of CPU
+//! (131 s on the clock) on the 2-core development machine while other builds ran; added
+//! here, the changed features of shared dependencies also rebuilt the debug profile's
+//! dependencies (460 s of CPU in all, on the same busy machine). That is paid once per
+//! clean build; incremental builds of the project are unchanged. What they give back: a
 //! screen that only rewrites the cells that changed, a layout that follows the terminal's
 //! size, key input in raw mode, and the terminal restored on every way out (quit, end of
 //! run, panic), none of which the project has to keep. The plain line output (`--plain`,
