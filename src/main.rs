@@ -39,7 +39,7 @@ enum Command {
     /// The whole chain in simulation: simulated servos on pseudo-terminals, a simulated
     /// autopilot (or a real autopilot SITL), the bridge between them over MAVLink/UDP.
     #[command(
-        after_help = "Examples:\n  lj9da-bridge sitl --seconds 20\n  lj9da-bridge sitl --config mappings/ardupilot-plane.toml --autopilot udpin:0.0.0.0:14560\n      (ArduPilot SITL: sim_vehicle.py -v ArduPlane --out=udp:127.0.0.1:14560,\n       or arduplane --serial1=udpclient:127.0.0.1:14560)\n  lj9da-bridge sitl --config mappings/px4-vtol.toml --autopilot udpin:0.0.0.0:14540\n      (PX4 SITL: its onboard link sends to UDP 14540)\n\nThe bridge's telemetry is served on udpout:127.0.0.1:14550 for QGroundControl or MAVProxy."
+        after_help = "Examples:\n  lj9da-bridge sitl --seconds 20\n  lj9da-bridge sitl --config mappings/ardupilot-plane.toml --autopilot udpin:0.0.0.0:14560\n      (ArduPilot SITL: sim_vehicle.py -v ArduPlane --out=udp:127.0.0.1:14560,\n       or arduplane --model plane --serial0=tcp:0 --serial1=udpclient:127.0.0.1:14560)\n  lj9da-bridge sitl --config mappings/px4-vtol.toml --autopilot udpin:0.0.0.0:14540\n      (PX4 SITL: its onboard link sends to UDP 14540)\n\nThe bridge's telemetry is served on udpout:127.0.0.1:14550 for QGroundControl or MAVProxy."
     )]
     Sitl {
         /// An airframe's mapping file; its buses get simulated servos instead of their ports.
@@ -73,16 +73,24 @@ enum Command {
     Commission(Commission),
 }
 
-fn init_logging() {
+/// Logs go to stderr, or into the live view while it owns the terminal.
+fn init_logging(live_view: bool) {
     use tracing_subscriber::EnvFilter;
     let filter = EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| EnvFilter::new("warn,lj9da_bridge=info"));
     use std::io::IsTerminal;
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::stderr().is_terminal())
-        .init();
+    let fmt = tracing_subscriber::fmt().with_env_filter(filter);
+    if live_view {
+        fmt.with_writer(simulation::live::LogWriter::default)
+            .with_ansi(false)
+            .without_time()
+            .with_target(false)
+            .init();
+    } else {
+        fmt.with_writer(std::io::stderr)
+            .with_ansi(std::io::stderr().is_terminal())
+            .init();
+    }
 }
 
 fn load(path: &Path) -> Result<Config, ExitCode> {
@@ -94,7 +102,9 @@ fn load(path: &Path) -> Result<Config, ExitCode> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    init_logging();
+    let live_view = matches!(cli.command, Command::Sitl { plain: false, .. })
+        && std::io::IsTerminal::is_terminal(&std::io::stdout());
+    init_logging(live_view);
     // One thread is plenty for MAVLink and the ground station (each bus has a thread of its
     // own), and tasks that hand work to each other then never wake a second thread.
     let rt = match tokio::runtime::Builder::new_current_thread()

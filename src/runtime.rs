@@ -11,7 +11,9 @@ use crate::bus::{
 };
 use crate::config::{Config, ExitAction};
 use crate::mavlink::reply_quality::{QualityChange, ReplyQuality};
-use crate::mavlink::{BridgeCore, BridgeEvent, LinkId, ServoEvent, ServoReport, ServoState};
+use crate::mavlink::{
+    BridgeCore, BridgeEvent, LinkId, ServoEvent, ServoReport, ServoState, TemperatureReading,
+};
 use crate::protocol::ServoId;
 use crate::record::{RecordHandle, RecordLimits, RecordServo, Recorder, StatusFeed};
 use ::mavlink::dialects::common::MavMessage;
@@ -58,7 +60,14 @@ pub struct BridgeView {
     pub autopilot: Option<(u8, u8)>,
     pub failsafe: bool,
     pub output_rate_hz: f32,
+    /// Each bus's status, in the order of the mapping file's `[[bus]]` tables.
+    pub buses: Vec<BusStatus>,
+    /// The latest STATUSTEXTs sent, oldest first (at most [`VIEW_TEXTS`]).
+    pub texts: Vec<String>,
 }
+
+/// How many of the latest STATUSTEXTs the view keeps.
+pub const VIEW_TEXTS: usize = 6;
 
 /// The running bridge's buses, in the order of the mapping file's `[[bus]]` tables, and where
 /// each servo lives.
@@ -119,6 +128,14 @@ impl Buses {
 
     fn reports(&self, cfg: &Config) -> (Vec<ServoReport>, Vec<ServoView>) {
         let statuses: Vec<BusStatus> = self.handles.iter().map(BusHandle::status).collect();
+        self.reports_of(cfg, &statuses)
+    }
+
+    fn reports_of(
+        &self,
+        cfg: &Config,
+        statuses: &[BusStatus],
+    ) -> (Vec<ServoReport>, Vec<ServoView>) {
         let mut reports = Vec::with_capacity(self.servo_at.len());
         let mut views = Vec::with_capacity(self.servo_at.len());
         for (i, (bus, id)) in self.servo_at.iter().enumerate() {
@@ -145,7 +162,16 @@ impl Buses {
     }
 }
 
-/// The MAVLink view of one servo's bus status.
+/// How long a servo's latest reading is passed on to the ground station (and quoted in a
+/// STATUSTEXT). A servo that answers is read tens of times a second, so a reading this old
+/// belongs to a servo that has stopped answering; repeating it would show a past value as
+/// the present one.
+pub const FRESH_FOR: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// The MAVLink view of one servo's bus status. Its telemetry goes out whenever the latest
+/// reading is fresh (younger than [`FRESH_FOR`] when the status was taken), whatever the
+/// servo's health: a servo in temperature error (force off) is still read, and that is when
+/// the operator most needs to watch its temperature fall and see where the rod stopped.
 pub fn report_of(s: &crate::bus::ServoStatus) -> ServoReport {
     let state = match s.health {
         Health::Starting => ServoState::Starting,
@@ -154,7 +180,7 @@ pub fn report_of(s: &crate::bus::ServoStatus) -> ServoReport {
         Health::Offline => ServoState::Offline,
         Health::WrongModel | Health::TemperatureError => ServoState::Fault,
     };
-    let fresh = matches!(s.health, Health::Online | Health::Stale);
+    let fresh = s.age.is_some_and(|age| age < FRESH_FOR);
     let t = s.telemetry.filter(|_| fresh);
     ServoReport {
         state: Some(state),
@@ -182,16 +208,20 @@ fn bridge_event(cfg: &Config, buses: &Buses, bus: usize, event: &BusEvent) -> Op
             .iter()
             .position(|(b, i)| *b == bus && *i == id)
     });
-    // The temperature quoted with an alarm or error: the reading of the reply that raised it
-    // (at most a second old). The all-clear quotes none: after a power cycle the last reading
-    // can predate the restart.
-    let celsius = || {
+    // The temperature quoted with an alarm or error: the latest reading, if it is fresh, and
+    // its age now. The all-clear quotes none: after a power cycle the last reading can predate
+    // the restart.
+    let reading = || {
         let id = event.servo()?;
         let status = buses.handles.get(bus)?.status();
         let servo = status.servos.iter().find(|s| s.id == id)?;
-        let fresh = servo.telemetry_at?.elapsed() < std::time::Duration::from_secs(1);
-        fresh.then_some(servo.telemetry?.present_temperature.0)
+        let age = servo.telemetry_at?.elapsed();
+        (age < FRESH_FOR).then_some(TemperatureReading {
+            celsius: servo.telemetry?.present_temperature.0,
+            age,
+        })
     };
+    let celsius = || reading().map(|r| r.celsius);
     let servo_event = match event {
         BusEvent::ServoLost { .. } => ServoEvent::Lost,
         BusEvent::ServoBack { .. } => ServoEvent::Back,
@@ -199,7 +229,9 @@ fn bridge_event(cfg: &Config, buses: &Buses, bus: usize, event: &BusEvent) -> Op
             on: *on,
             celsius: if *on { celsius() } else { None },
         },
-        BusEvent::TemperatureError { .. } => ServoEvent::TemperatureError { celsius: celsius() },
+        BusEvent::TemperatureError { .. } => ServoEvent::TemperatureError {
+            last_read: reading(),
+        },
         BusEvent::Stalled { on, .. } => ServoEvent::Stalled { on: *on },
         BusEvent::WrongModel { found, .. } => ServoEvent::WrongModel { found: *found },
         BusEvent::FlashWriteError { .. } => ServoEvent::FlashWriteError,
@@ -338,6 +370,7 @@ pub async fn run(
     }
 
     let mut view_at = Instant::now();
+    let mut texts = std::collections::VecDeque::with_capacity(VIEW_TEXTS);
     let mut pending_goals: Vec<Vec<(ServoId, crate::bus::Goal)>> =
         vec![Vec::new(); buses.handles.len()];
     let mut qualities: Vec<ReplyQuality> = buses
@@ -393,12 +426,15 @@ pub async fn run(
         }
         if let Some(header) = core.header() {
             while let Some(out) = core.poll_message() {
-                if let (Some(r), MavMessage::STATUSTEXT(t)) = (&record, &out.message) {
-                    r.event(
-                        None,
-                        t.severity as u8,
-                        t.text.to_str().unwrap_or("").to_string(),
-                    );
+                if let MavMessage::STATUSTEXT(t) = &out.message {
+                    let text = t.text.to_str().unwrap_or("").to_string();
+                    if let Some(r) = &record {
+                        r.event(None, t.severity as u8, text.clone());
+                    }
+                    if texts.len() == VIEW_TEXTS {
+                        texts.pop_front();
+                    }
+                    texts.push_back(text);
                 }
                 let header = match out.sender {
                     Some((system, component)) => MavHeader {
@@ -422,12 +458,15 @@ pub async fn run(
         }
         if let Some(view) = view.as_ref().filter(|_| view_at.elapsed() >= VIEW_PERIOD) {
             view_at = Instant::now();
-            let (_, servos) = buses.reports(&cfg);
+            let statuses: Vec<BusStatus> = buses.handles.iter().map(BusHandle::status).collect();
+            let (_, servos) = buses.reports_of(&cfg, &statuses);
             view.send_replace(BridgeView {
                 servos,
                 autopilot: core.autopilot(),
                 failsafe: core.in_failsafe(),
                 output_rate_hz: core.requested_rate_hz(),
+                buses: statuses,
+                texts: texts.iter().cloned().collect(),
             });
         }
     }
@@ -450,4 +489,85 @@ pub async fn run(
         tracing::info!(file = ?path, ?stats, "flight record closed");
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::{ForceState, ServoIdentity, ServoStatus};
+    use crate::protocol::{Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, Telemetry};
+    use std::time::Duration;
+
+    /// A servo whose latest reading (1.5 mm, 0.3 A, 86 °C, 12 V) is `age` old.
+    fn status(health: Health, age: Option<Duration>) -> ServoStatus {
+        ServoStatus {
+            id: ServoId::new(4).unwrap(),
+            name: "rudder".into(),
+            health,
+            telemetry: Some(Telemetry {
+                present_position: MmCenti(150),
+                present_time: Ms10(0),
+                present_load: Ma10(30),
+                present_temperature: Celsius(86),
+                present_voltage: Mv10(1200),
+            }),
+            telemetry_at: age.map(|a| Instant::now() - a),
+            position_at: None,
+            age,
+            flags: ReplyFlags(0),
+            goal: None,
+            force: ForceState::Off,
+            stalled: false,
+            identity: ServoIdentity::default(),
+            consecutive_timeouts: 0,
+            telemetry_count: 100,
+            answered: 100,
+            timeouts: 0,
+        }
+    }
+
+    fn telemetry_of(r: &ServoReport) -> [Option<f32>; 4] {
+        [r.position_mm, r.current_a, r.temperature_c, r.voltage_v]
+    }
+
+    #[test]
+    fn a_fresh_reading_goes_out_whatever_the_servos_health() {
+        let fresh = Some(Duration::from_millis(20));
+        for health in [
+            Health::Starting,
+            Health::Online,
+            Health::Stale,
+            Health::Offline,
+            Health::WrongModel,
+            Health::TemperatureError,
+        ] {
+            let r = report_of(&status(health, fresh));
+            assert_eq!(
+                telemetry_of(&r),
+                [Some(1.5), Some(0.3), Some(86.0), Some(12.0)],
+                "{health:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_servo_in_temperature_error_reports_its_temperature_and_its_fault() {
+        let mut s = status(Health::TemperatureError, Some(Duration::from_millis(15)));
+        s.flags = ReplyFlags(ReplyFlags::TEMPERATURE_ERROR);
+        let r = report_of(&s);
+        assert_eq!(r.state, Some(ServoState::Fault));
+        assert!(r.temperature_error);
+        assert_eq!(r.temperature_c, Some(86.0));
+    }
+
+    #[test]
+    fn a_reading_older_than_fresh_for_is_not_passed_on_as_present() {
+        for health in [Health::Online, Health::Stale, Health::TemperatureError] {
+            let r = report_of(&status(health, Some(FRESH_FOR)));
+            assert_eq!(telemetry_of(&r), [None; 4], "{health:?}");
+        }
+        let mut never_read = status(Health::Online, None);
+        never_read.telemetry = None;
+        assert_eq!(telemetry_of(&report_of(&never_read)), [None; 4]);
+    }
 }

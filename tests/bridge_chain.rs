@@ -279,6 +279,7 @@ async fn an_overheating_servo_produces_one_warning_and_one_error() {
     // message the bridge sent after the window, heard by the ground station.
     let line = sim.subscribe();
     let window = std::time::Instant::now();
+    let latched = window;
     let mut polls = 0;
     while polls < 100 || window.elapsed() < SECS(2) {
         assert!(
@@ -301,6 +302,35 @@ async fn an_overheating_servo_produces_one_warning_and_one_error() {
             "a message from the bridge after the window",
             SECS(10),
             |heard| heard.iter().any(|(at, _, _)| *at > closed),
+        )
+        .await;
+    // Force is off, but the servo still answers: its temperature keeps reaching the ground
+    // station, as a NAMED_VALUE_FLOAT (sent on change, refreshed every 5 s) and in ESC_INFO
+    // (not "unknown").
+    chain
+        .gcs
+        .wait_for(
+            "the rudder's temperature after the error",
+            SECS(15),
+            |heard| {
+                let after = heard.iter().filter(|(at, _, _)| *at >= latched);
+                let (mut named, mut esc) = (false, false);
+                for (_, _, m) in after {
+                    match m {
+                        MavMessage::NAMED_VALUE_FLOAT(v) if v.name.to_str() == Ok("rudder_tmp") => {
+                            assert!(v.value >= 80.0, "rudder_tmp {} after the error", v.value);
+                            named = true;
+                        }
+                        MavMessage::ESC_INFO(i) => {
+                            let t = i.temperature[3];
+                            assert!(t != i16::MAX && t >= 8000, "ESC_INFO {i:?} after the error");
+                            esc = true;
+                        }
+                        _ => {}
+                    }
+                }
+                named && esc
+            },
         )
         .await;
     let texts: Vec<_> = chain

@@ -4,7 +4,7 @@ use lj9da_bridge::bus::Goal;
 use lj9da_bridge::config::Config;
 use lj9da_bridge::mavlink::outputs::servo_output_raw;
 use lj9da_bridge::mavlink::{
-    BridgeCore, BridgeEvent, Outgoing, ServoEvent, ServoReport, ServoState,
+    BridgeCore, BridgeEvent, Outgoing, ServoEvent, ServoReport, ServoState, TemperatureReading,
 };
 use lj9da_bridge::protocol::MmCenti;
 use mavlink::MavHeader;
@@ -1191,7 +1191,12 @@ fn events_become_one_statustext_each() {
     c.event(
         BridgeEvent::Servo {
             servo: 0,
-            event: ServoEvent::TemperatureError { celsius: Some(85) },
+            event: ServoEvent::TemperatureError {
+                last_read: Some(TemperatureReading {
+                    celsius: 85,
+                    age: Duration::from_millis(400),
+                }),
+            },
         },
         t0,
     );
@@ -1205,7 +1210,7 @@ fn events_become_one_statustext_each() {
             ),
             (
                 MavSeverity::MAV_SEVERITY_CRITICAL,
-                "aileron_left: overheat 85C, force off".to_string()
+                "aileron_left: overheat, force off; 85C 0.4s ago".to_string()
             ),
         ]
     );

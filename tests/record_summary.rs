@@ -8,6 +8,7 @@ use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, Tel
 use lj9da_bridge::record::cli::{RecordCommand, run};
 use lj9da_bridge::record::csv::{CSV_HEADER, write_csv};
 use lj9da_bridge::record::format::{RecordHeader, RecordServo, encode_header, encode_record};
+use lj9da_bridge::record::page::flight_page;
 use lj9da_bridge::record::plot::plot;
 use lj9da_bridge::record::{Record, RecordBody, Recording, summary};
 use std::process::ExitCode;
@@ -541,4 +542,72 @@ fn position_records_count_in_the_error_and_the_exports_but_not_as_samples() {
         row.starts_with("2.000000,") && row.contains(",7.00,"),
         "{row}"
     );
+}
+
+#[test]
+fn one_page_shows_every_servo_of_a_flight_with_nothing_to_fetch() {
+    let rec = synthetic();
+    let page = flight_page(&rec, "run");
+    assert!(page.starts_with("<!DOCTYPE html>"));
+    assert!(page.trim_end().ends_with("</html>"));
+    for servo in ["left", "right"] {
+        assert_eq!(
+            count(&page, &format!("<section data-servo=\"{servo}\">")),
+            1
+        );
+    }
+    // Each servo's whole picture, inline and zoomable: the same series as its SVG file.
+    assert_eq!(count(&page, "<svg data-zoom"), 2);
+    assert!(
+        !page.contains("<?xml"),
+        "inline SVG takes no XML declaration"
+    );
+    for servo in 0..2 {
+        let svg = lj9da_bridge::record::plot::servo_svg(&rec, servo, "run");
+        let body = &svg[svg.find("<svg ").unwrap() + "<svg ".len()..];
+        assert!(
+            page.contains(body),
+            "servo {servo}'s picture is in the page whole"
+        );
+    }
+    let svgs: String = (0..2)
+        .map(|servo| lj9da_bridge::record::plot::servo_svg(&rec, servo, "run"))
+        .collect();
+    for series in ["goal", "position", "current", "temperature", "voltage"] {
+        let needle = format!("data-series=\"{series}\"");
+        assert!(count(&page, &needle) >= 1, "{series}");
+        assert_eq!(count(&page, &needle), count(&svgs, &needle), "{series}");
+    }
+    // The flight's summary, and nothing loaded from elsewhere.
+    assert!(page.contains("left: 2 × temperature alarm, 1 × temperature error"));
+    for outside in ["src=", "<link", "@import", "https:"] {
+        assert!(!page.contains(outside), "{outside}");
+    }
+}
+
+#[test]
+fn record_plot_also_writes_the_flights_page() {
+    let dir = TempDir::new("page");
+    let mut bytes = encode_header(&RecordHeader::new(
+        1_763_769_600_000_000_000,
+        vec![
+            RecordServo::new("left", "wing", 1, 3),
+            RecordServo::new("right", "wing", 2, 4),
+        ],
+    ));
+    for r in synthetic_records() {
+        encode_record(&r, &mut bytes);
+    }
+    let file = dir.path().join("20251122T000000Z.lj9rec");
+    std::fs::write(&file, &bytes).unwrap();
+    let out = dir.path().join("pictures");
+    assert_eq!(
+        run(RecordCommand::Plot {
+            file,
+            out: out.clone()
+        }),
+        ExitCode::SUCCESS
+    );
+    let page = std::fs::read_to_string(out.join("20251122T000000Z.html")).unwrap();
+    assert_eq!(count(&page, "<svg data-zoom"), 2);
 }

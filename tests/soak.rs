@@ -240,13 +240,22 @@ fn temperature_ok(name: &'static str) -> impl Fn(&str) -> bool {
     }
 }
 
-/// "<name>: overheat NNC, force off"
+/// "<name>: overheat, force off", with the last temperature read and its age when it is
+/// fresh: "<name>: overheat, force off; NNC N.Ns ago".
 fn overheat(name: &'static str) -> impl Fn(&str) -> bool {
     move |t| {
-        t.strip_prefix(name)
-            .and_then(|t| t.strip_prefix(": overheat "))
-            .and_then(|t| t.strip_suffix("C, force off"))
-            .is_some_and(is_number)
+        let Some(rest) = t
+            .strip_prefix(name)
+            .and_then(|t| t.strip_prefix(": overheat, force off"))
+        else {
+            return false;
+        };
+        rest.is_empty()
+            || rest
+                .strip_prefix("; ")
+                .and_then(|r| r.strip_suffix("s ago"))
+                .and_then(|r| r.split_once("C "))
+                .is_some_and(|(c, age)| is_number(c) && age.parse::<f64>().is_ok())
     }
 }
 
@@ -990,7 +999,7 @@ impl Soak {
             &self.chain,
             start,
             MavSeverity::MAV_SEVERITY_CRITICAL,
-            "rudder: overheat NNC, force off",
+            "rudder: overheat, force off[; NNC N.Ns ago]",
             S(15),
             overheat("rudder"),
         )

@@ -13,6 +13,7 @@ use super::scan::{ScanOptions, scan};
 use super::set::{SetOptions, set};
 use super::settings::Setting;
 use crate::protocol::{BaudRate, ForceMode, MmCenti, Ms10, ServoId};
+use crate::simulation::live::{TextScreen, quit_key};
 use clap::{Args, Subcommand, ValueEnum};
 use std::io::{BufRead, IsTerminal, Write};
 use std::path::PathBuf;
@@ -464,6 +465,22 @@ fn run_monitor(rt: &Runtime, args: &MonitorArgs) -> ExitCode {
     let redraw = !args.plain && std::io::stdout().is_terminal();
     let result = rt.block_on(async {
         let mut link = open(&args.port, Link::DEFAULT_MARGIN).await?;
+        if redraw {
+            // Redrawn in place until q, Esc or Ctrl-C (a key in raw mode); the last table
+            // stays on the terminal after it is given back.
+            let mut screen = TextScreen::open().map_err(|e| {
+                CommissionError::Failed(format!("cannot draw on this terminal: {e} (try --plain)"))
+            })?;
+            let mut last = String::new();
+            let taken = monitor(&mut link, &args.ids.0, options, quit_key(), |n, rows| {
+                last = print::monitor_table(n, rows);
+                let _ = screen.show(&last);
+            })
+            .await;
+            drop(screen);
+            println!("{last}");
+            return taken;
+        }
         let stop = async {
             if tokio::signal::ctrl_c().await.is_err() {
                 std::future::pending::<()>().await;
@@ -472,11 +489,7 @@ fn run_monitor(rt: &Runtime, args: &MonitorArgs) -> ExitCode {
         monitor(&mut link, &args.ids.0, options, stop, |n, rows| {
             let table = print::monitor_table(n, rows);
             let mut out = std::io::stdout().lock();
-            let _ = if redraw {
-                write!(out, "\x1b[H\x1b[2J{table}")
-            } else {
-                writeln!(out, "{table}")
-            };
+            let _ = writeln!(out, "{table}");
             let _ = out.flush();
         })
         .await

@@ -2,10 +2,11 @@
 //! status flags of its reply explained. Nothing is written.
 
 use super::CommissionError;
-use super::json::Json;
+use super::json::{Fixed, centi};
 use super::link::{Link, LinkError};
 use crate::protocol::registers::{Access, Area, Register};
 use crate::protocol::{BaudRate, MemoryMap, ReplyFlags, ServoId};
+use serde::Serialize;
 
 /// One servo's memory map as read.
 #[derive(Debug, Clone, PartialEq)]
@@ -80,121 +81,147 @@ impl InfoReport {
     }
 
     /// The report for scripts (`info --json`).
-    pub fn to_json(&self) -> Json {
+    pub fn to_json(&self) -> InfoJson {
         let m = &self.map;
         let (plus_margin, minus_margin) = m.compliance_margins();
         let (plus_slope, minus_slope) = m.compliance_slopes();
         let t = m.telemetry();
-        let summary = Json::object([
-            ("model_number", Json::Int(i64::from(m.model_number()))),
-            (
-                "is_lj9da41",
-                Json::Bool(m.model_number() == crate::protocol::LJ9DA41_MODEL_NUMBER),
-            ),
-            (
-                "firmware_version",
-                Json::Int(i64::from(m.firmware_version())),
-            ),
-            (
-                "servo_id",
-                Json::Int(i64::from(
-                    m.bytes()[usize::from(crate::protocol::registers::addr::SERVO_ID)],
-                )),
-            ),
-            ("reversed", Json::Bool(m.reversed())),
-            (
-                "baud",
-                m.baud_rate()
-                    .map_or(Json::Null, |b| Json::Int(i64::from(b.bits_per_second()))),
-            ),
-            ("return_delay_ms", Json::Int(i64::from(m.return_delay_ms()))),
-            ("plus_limit_mm", Json::Float(m.plus_limit().mm(), 2)),
-            ("minus_limit_mm", Json::Float(m.minus_limit().mm(), 2)),
-            (
-                "temperature_limit_c",
-                Json::Int(i64::from(m.temperature_limit().0)),
-            ),
-            ("plus_compliance_margin", Json::Int(i64::from(plus_margin))),
-            (
-                "minus_compliance_margin",
-                Json::Int(i64::from(minus_margin)),
-            ),
-            ("plus_compliance_slope", Json::Int(i64::from(plus_slope))),
-            ("minus_compliance_slope", Json::Int(i64::from(minus_slope))),
-            ("punch_raw", Json::Int(i64::from(m.punch_raw()))),
-            ("goal_position_mm", Json::Float(m.goal_position().mm(), 2)),
-            ("goal_time_ms", Json::Int(i64::from(m.goal_time().millis()))),
-            ("max_force_percent", Json::Int(i64::from(m.max_force_raw()))),
-            (
-                "force",
-                Json::str(match m.force_mode() {
-                    Ok(crate::protocol::ForceMode::Off) => "off",
-                    Ok(crate::protocol::ForceMode::On) => "on",
-                    Ok(crate::protocol::ForceMode::Brake) => "brake",
-                    Err(_) => "unknown",
-                }),
-            ),
-            (
-                "present_position_mm",
-                Json::Float(t.present_position.mm(), 2),
-            ),
-            (
-                "present_time_ms",
-                Json::Int(i64::from(t.present_time.millis())),
-            ),
-            (
-                "present_load_ma",
-                Json::Int(i64::from(t.present_load.0) * 10),
-            ),
-            (
-                "present_temperature_c",
-                Json::Int(i64::from(t.present_temperature.0)),
-            ),
-            (
-                "present_voltage_v",
-                Json::Float(t.present_voltage.volts(), 2),
-            ),
-        ]);
-        let flags = Json::object([
-            ("raw", Json::Int(i64::from(self.flags.0))),
-            (
-                "temperature_error",
-                Json::Bool(self.flags.temperature_error()),
-            ),
-            (
-                "temperature_alarm",
-                Json::Bool(self.flags.temperature_alarm()),
-            ),
-            (
-                "flash_write_error",
-                Json::Bool(self.flags.flash_write_error()),
-            ),
-            ("text", Json::str(self.flags.to_string())),
-        ]);
+        let summary = SummaryJson {
+            model_number: m.model_number(),
+            is_lj9da41: m.model_number() == crate::protocol::LJ9DA41_MODEL_NUMBER,
+            firmware_version: m.firmware_version(),
+            servo_id: m.bytes()[usize::from(crate::protocol::registers::addr::SERVO_ID)],
+            reversed: m.reversed(),
+            baud: m.baud_rate().ok().map(|b| b.bits_per_second()),
+            return_delay_ms: m.return_delay_ms(),
+            plus_limit_mm: centi(m.plus_limit().mm()),
+            minus_limit_mm: centi(m.minus_limit().mm()),
+            temperature_limit_c: m.temperature_limit().0,
+            plus_compliance_margin: plus_margin,
+            minus_compliance_margin: minus_margin,
+            plus_compliance_slope: plus_slope,
+            minus_compliance_slope: minus_slope,
+            punch_raw: m.punch_raw(),
+            goal_position_mm: centi(m.goal_position().mm()),
+            goal_time_ms: m.goal_time().millis(),
+            max_force_percent: m.max_force_raw(),
+            force: match m.force_mode() {
+                Ok(crate::protocol::ForceMode::Off) => "off",
+                Ok(crate::protocol::ForceMode::On) => "on",
+                Ok(crate::protocol::ForceMode::Brake) => "brake",
+                Err(_) => "unknown",
+            },
+            present_position_mm: centi(t.present_position.mm()),
+            present_time_ms: t.present_time.millis(),
+            present_load_ma: u32::from(t.present_load.0) * 10,
+            present_temperature_c: t.present_temperature.0,
+            present_voltage_v: centi(t.present_voltage.volts()),
+        };
+        let flags = FlagsJson {
+            raw: self.flags.0,
+            temperature_error: self.flags.temperature_error(),
+            temperature_alarm: self.flags.temperature_alarm(),
+            flash_write_error: self.flags.flash_write_error(),
+            text: self.flags.to_string(),
+        };
         let registers = self
             .registers()
             .into_iter()
-            .map(|(r, raw, reading)| {
-                Json::object([
-                    ("address", Json::Int(i64::from(r.address))),
-                    ("size", Json::Int(i64::from(r.size))),
-                    ("name", Json::str(r.name)),
-                    ("access", Json::str(access_name(r.access))),
-                    ("area", Json::str(area_name(r.area))),
-                    ("unit", Json::str(r.unit)),
-                    ("raw", Json::Int(i64::from(raw))),
-                    ("reading", Json::str(reading)),
-                ])
+            .map(|(r, raw, reading)| RegisterJson {
+                address: r.address,
+                size: r.size,
+                name: r.name,
+                access: access_name(r.access),
+                area: area_name(r.area),
+                unit: r.unit,
+                raw,
+                reading,
             })
             .collect();
-        Json::object([
-            ("id", Json::Int(i64::from(self.id.get()))),
-            ("baud", Json::Int(i64::from(self.baud.bits_per_second()))),
-            ("flags", flags),
-            ("summary", summary),
-            ("registers", Json::Array(registers)),
-        ])
+        InfoJson {
+            id: self.id.get(),
+            baud: self.baud.bits_per_second(),
+            flags,
+            summary,
+            registers,
+        }
     }
+}
+
+/// `info --json`: the servo, its reply's flags, the memory map's meaning, and every register.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct InfoJson {
+    pub id: u8,
+    pub baud: u32,
+    pub flags: FlagsJson,
+    pub summary: SummaryJson,
+    pub registers: Vec<RegisterJson>,
+}
+
+impl InfoJson {
+    /// Indented by two spaces per level.
+    pub fn pretty(&self) -> String {
+        super::json::pretty(self)
+    }
+}
+
+impl std::fmt::Display for InfoJson {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.pretty())
+    }
+}
+
+/// The status flags of the servo's reply.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FlagsJson {
+    pub raw: u8,
+    pub temperature_error: bool,
+    pub temperature_alarm: bool,
+    pub flash_write_error: bool,
+    pub text: String,
+}
+
+/// The memory map's settings and readings, in their units.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SummaryJson {
+    pub model_number: u16,
+    pub is_lj9da41: bool,
+    pub firmware_version: u8,
+    pub servo_id: u8,
+    pub reversed: bool,
+    /// `null` when register 6 holds no known rate.
+    pub baud: Option<u32>,
+    pub return_delay_ms: u8,
+    pub plus_limit_mm: Fixed,
+    pub minus_limit_mm: Fixed,
+    pub temperature_limit_c: i16,
+    pub plus_compliance_margin: u8,
+    pub minus_compliance_margin: u8,
+    pub plus_compliance_slope: u8,
+    pub minus_compliance_slope: u8,
+    pub punch_raw: u16,
+    pub goal_position_mm: Fixed,
+    pub goal_time_ms: u32,
+    pub max_force_percent: u8,
+    pub force: &'static str,
+    pub present_position_mm: Fixed,
+    pub present_time_ms: u32,
+    pub present_load_ma: u32,
+    pub present_temperature_c: i16,
+    pub present_voltage_v: Fixed,
+}
+
+/// One register: where it is, what it is, and what it holds.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RegisterJson {
+    pub address: u8,
+    pub size: u8,
+    pub name: &'static str,
+    pub access: &'static str,
+    pub area: &'static str,
+    pub unit: &'static str,
+    pub raw: u16,
+    pub reading: String,
 }
 
 /// Short access name for tables.

@@ -1,129 +1,68 @@
-//! A tiny JSON value and writer for `--json` output (no parser: the tools only emit JSON).
+//! What `--json` output needs beyond `serde_json`: readings written with the decimals their
+//! unit has (`25.00` mm, not `25.0`), as the tables print them.
 
-use std::fmt;
+use serde::{Serialize, Serializer};
+use serde_json::value::RawValue;
 
-/// A JSON value. Objects keep their keys in insertion order.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Json {
-    Null,
-    Bool(bool),
-    Int(i64),
-    /// Written with up to `decimals` digits after the point; not-a-number is written as null.
-    Float(f64, usize),
-    Str(String),
-    Array(Vec<Json>),
-    Object(Vec<(String, Json)>),
+/// A reading written with a fixed number of decimals; not-a-number is written as `null`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fixed {
+    pub value: f64,
+    pub decimals: usize,
 }
 
-impl Json {
-    /// An object from `(key, value)` pairs.
-    pub fn object<K: Into<String>>(pairs: impl IntoIterator<Item = (K, Json)>) -> Json {
-        Json::Object(pairs.into_iter().map(|(k, v)| (k.into(), v)).collect())
-    }
+/// A reading in hundredths (mm, V), written with two decimals.
+pub fn centi(value: f64) -> Fixed {
+    Fixed { value, decimals: 2 }
+}
 
-    pub fn str(s: impl Into<String>) -> Json {
-        Json::Str(s.into())
-    }
-
-    /// The value, indented by two spaces per level.
-    pub fn pretty(&self) -> String {
-        let mut out = String::new();
-        self.write(&mut out, 0);
-        out
-    }
-
-    fn write(&self, out: &mut String, level: usize) {
-        match self {
-            Json::Null => out.push_str("null"),
-            Json::Bool(b) => out.push_str(if *b { "true" } else { "false" }),
-            Json::Int(i) => out.push_str(&i.to_string()),
-            Json::Float(f, decimals) => {
-                if f.is_finite() {
-                    out.push_str(&format!("{f:.decimals$}"));
-                } else {
-                    out.push_str("null");
-                }
-            }
-            Json::Str(s) => write_string(out, s),
-            Json::Array(items) => {
-                if items.is_empty() {
-                    out.push_str("[]");
-                    return;
-                }
-                out.push('[');
-                for (i, item) in items.iter().enumerate() {
-                    out.push_str(if i == 0 { "\n" } else { ",\n" });
-                    indent(out, level + 1);
-                    item.write(out, level + 1);
-                }
-                out.push('\n');
-                indent(out, level);
-                out.push(']');
-            }
-            Json::Object(pairs) => {
-                if pairs.is_empty() {
-                    out.push_str("{}");
-                    return;
-                }
-                out.push('{');
-                for (i, (key, value)) in pairs.iter().enumerate() {
-                    out.push_str(if i == 0 { "\n" } else { ",\n" });
-                    indent(out, level + 1);
-                    write_string(out, key);
-                    out.push_str(": ");
-                    value.write(out, level + 1);
-                }
-                out.push('\n');
-                indent(out, level);
-                out.push('}');
-            }
+impl Serialize for Fixed {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        if !self.value.is_finite() {
+            return serializer.serialize_none();
+        }
+        let text = format!("{:.*}", self.decimals, self.value);
+        match RawValue::from_string(text) {
+            Ok(raw) => raw.serialize(serializer),
+            Err(_) => serializer.serialize_f64(self.value),
         }
     }
 }
 
-impl fmt::Display for Json {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.pretty())
-    }
-}
-
-fn indent(out: &mut String, level: usize) {
-    for _ in 0..level {
-        out.push_str("  ");
-    }
-}
-
-fn write_string(out: &mut String, s: &str) {
-    out.push('"');
-    for c in s.chars() {
-        match c {
-            '"' => out.push_str("\\\""),
-            '\\' => out.push_str("\\\\"),
-            '\n' => out.push_str("\\n"),
-            '\r' => out.push_str("\\r"),
-            '\t' => out.push_str("\\t"),
-            c if u32::from(c) < 0x20 => out.push_str(&format!("\\u{:04x}", u32::from(c))),
-            c => out.push(c),
-        }
-    }
-    out.push('"');
+/// `value` as JSON indented by two spaces per level.
+pub fn pretty(value: &impl Serialize) -> String {
+    // Plain structs, strings and numbers: serialising them cannot fail.
+    serde_json::to_string_pretty(value).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    #[derive(Serialize)]
+    struct Sample {
+        b: String,
+        a: Vec<serde_json::Value>,
+        limit: Fixed,
+        n: Fixed,
+        e: std::collections::BTreeMap<String, u8>,
+    }
+
     #[test]
-    fn strings_are_escaped_and_objects_keep_their_order() {
-        let j = Json::object([
-            ("b", Json::str("a \"q\" \\ \n\u{1}")),
-            ("a", Json::Array(vec![Json::Int(-1), Json::Float(2.5, 2)])),
-            ("n", Json::Float(f64::NAN, 1)),
-            ("e", Json::Object(vec![])),
-        ]);
+    fn strings_are_escaped_fields_keep_their_order_and_readings_their_decimals() {
+        let j = Sample {
+            b: "a \"q\" \\ \n\u{1}".into(),
+            a: vec![(-1).into(), 2.5.into()],
+            limit: centi(25.0),
+            n: Fixed {
+                value: f64::NAN,
+                decimals: 1,
+            },
+            e: Default::default(),
+        };
         assert_eq!(
-            j.pretty(),
-            "{\n  \"b\": \"a \\\"q\\\" \\\\ \\n\\u0001\",\n  \"a\": [\n    -1,\n    2.50\n  ],\n  \"n\": null,\n  \"e\": {}\n}"
+            pretty(&j),
+            "{\n  \"b\": \"a \\\"q\\\" \\\\ \\n\\u0001\",\n  \"a\": [\n    -1,\n    2.5\n  ],\n  \"limit\": 25.00,\n  \"n\": null,\n  \"e\": {}\n}"
         );
     }
 }

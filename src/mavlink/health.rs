@@ -42,6 +42,13 @@ impl ServoReport {
     }
 }
 
+/// A temperature read from a servo, and how old that reading was when the event was told.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct TemperatureReading {
+    pub celsius: i16,
+    pub age: std::time::Duration,
+}
+
 /// Something that happened to one servo.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum ServoEvent {
@@ -56,7 +63,10 @@ pub enum ServoEvent {
     },
     /// The servo hit its temperature limit and switched force off; it needs a power cycle.
     TemperatureError {
-        celsius: Option<i16>,
+        /// The latest temperature read, if a fresh one is at hand. The flag may come in a
+        /// reply that carries no temperature (a position read, a write's answer), so this
+        /// reading can predate the event: the servo may be hotter by now.
+        last_read: Option<TemperatureReading>,
     },
     Stalled {
         on: bool,

@@ -20,5 +20,5 @@ pub mod statustext;
 pub mod telemetry;
 
 pub use self::core::{BridgeCore, LinkId, Outgoing};
-pub use health::{BridgeEvent, ServoEvent, ServoReport, ServoState};
+pub use health::{BridgeEvent, ServoEvent, ServoReport, ServoState, TemperatureReading};
 pub use mavlink::dialects::common::MavMessage;

@@ -2,7 +2,7 @@
 //! it, and never a flood: a repeat of the same kind of event for the same servo (or the same
 //! bus) within the hold-off is counted and folded into the next message instead of being sent.
 
-use super::health::{BridgeEvent, ServoEvent};
+use super::health::{BridgeEvent, ServoEvent, TemperatureReading};
 use mavlink::dialects::common::MavSeverity;
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
@@ -25,9 +25,9 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
                 MAV_SEVERITY_NOTICE,
                 format!("{servo_name}: temperature ok{}", degrees(*celsius)),
             ),
-            ServoEvent::TemperatureError { celsius } => (
+            ServoEvent::TemperatureError { last_read } => (
                 MAV_SEVERITY_CRITICAL,
-                format!("{servo_name}: overheat{}, force off", degrees(*celsius)),
+                format!("{servo_name}: overheat, force off{}", reading(*last_read)),
             ),
             ServoEvent::Stalled { on: true } => {
                 (MAV_SEVERITY_ERROR, format!("{servo_name}: stalled"))
@@ -85,6 +85,14 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
 /// " 76C", or nothing when no fresh reading is at hand.
 fn degrees(celsius: Option<i16>) -> String {
     celsius.map(|c| format!(" {c}C")).unwrap_or_default()
+}
+
+/// "; 80C 0.4s ago": a reading quoted with its age, since it may predate the event it is
+/// quoted with; nothing when no fresh reading is at hand.
+fn reading(last_read: Option<TemperatureReading>) -> String {
+    last_read
+        .map(|r| format!("; {}C {:.1}s ago", r.celsius, r.age.as_secs_f32()))
+        .unwrap_or_default()
 }
 
 fn truncate(mut text: String) -> String {
@@ -260,7 +268,12 @@ mod tests {
         assert_eq!(
             sev(&BridgeEvent::Servo {
                 servo: 0,
-                event: ServoEvent::TemperatureError { celsius: Some(85) }
+                event: ServoEvent::TemperatureError {
+                    last_read: Some(TemperatureReading {
+                        celsius: 85,
+                        age: Duration::from_millis(400)
+                    })
+                }
             }),
             MavSeverity::MAV_SEVERITY_CRITICAL
         );
@@ -290,12 +303,44 @@ mod tests {
         let (_, t) = describe(
             &BridgeEvent::Servo {
                 servo: 0,
-                event: ServoEvent::TemperatureError { celsius: Some(85) },
+                event: ServoEvent::TemperatureError {
+                    last_read: Some(TemperatureReading {
+                        celsius: 85,
+                        age: Duration::from_millis(400),
+                    }),
+                },
             },
             long_name,
         );
         assert!(t.len() <= MAX_TEXT);
         assert!(with_folded(t, 12).ends_with(" (+12)"));
+    }
+
+    fn overheat(last_read: Option<TemperatureReading>) -> BridgeEvent {
+        BridgeEvent::Servo {
+            servo: 0,
+            event: ServoEvent::TemperatureError { last_read },
+        }
+    }
+
+    #[test]
+    fn an_overheat_quotes_the_last_reading_with_its_age_not_as_the_present_temperature() {
+        // The flag may arrive in a reply without a temperature: the reading quoted is older
+        // than the event, and the text says how much older.
+        let reading = TemperatureReading {
+            celsius: 80,
+            age: Duration::from_millis(430),
+        };
+        let (_, text) = describe(&overheat(Some(reading)), "rudder");
+        assert_eq!(text, "rudder: overheat, force off; 80C 0.4s ago");
+        let (_, text) = describe(&overheat(Some(reading)), "aileron_right");
+        assert_eq!(text, "aileron_right: overheat, force off; 80C 0.4s ago");
+    }
+
+    #[test]
+    fn an_overheat_without_a_fresh_reading_quotes_no_temperature() {
+        let (_, text) = describe(&overheat(None), "rudder");
+        assert_eq!(text, "rudder: overheat, force off");
     }
 
     #[test]
@@ -342,7 +387,12 @@ mod tests {
         assert!(th.admit(&other, t0).is_some());
         let err = BridgeEvent::Servo {
             servo: 0,
-            event: ServoEvent::TemperatureError { celsius: Some(85) },
+            event: ServoEvent::TemperatureError {
+                last_read: Some(TemperatureReading {
+                    celsius: 85,
+                    age: Duration::from_millis(400),
+                }),
+            },
         };
         assert!(th.admit(&err, t0).is_some());
     }

@@ -5,6 +5,7 @@
 //! 1 if the record cannot be read or the output cannot be written.
 
 use super::csv::write_csv;
+use super::page::write_page;
 use super::plot::plot;
 use super::reader::{Recording, read_record};
 use super::summary::summary;
@@ -22,8 +23,9 @@ pub enum RecordCommand {
         /// A record file (`*.lj9rec`, in the records folder).
         file: PathBuf,
     },
-    /// Write one SVG picture per servo: goal and position, current, temperature and voltage
-    /// against time, with alarms marked.
+    /// Write one SVG picture per servo (goal and position, current, temperature and voltage
+    /// against time, with alarms marked) and one HTML page with every servo's picture,
+    /// zoomable, and the flight's summary.
     Plot {
         file: PathBuf,
         /// The folder to write the pictures into (created if missing).
@@ -75,7 +77,9 @@ pub fn run(cmd: RecordCommand) -> ExitCode {
                 || "record".to_string(),
                 |s| s.to_string_lossy().into_owned(),
             );
-            match plot(&rec, &out, &stem) {
+            match plot(&rec, &out, &stem)
+                .and_then(|files| Ok([files, vec![write_page(&rec, &out, &stem)?]].concat()))
+            {
                 Ok(files) => {
                     for f in files {
                         println!("{}", f.display());

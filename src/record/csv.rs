@@ -10,8 +10,8 @@
 //! - event: `severity` (`warning`, …) and `text`; dropped: `text` (`records dropped: N`);
 //!   end: `text` (`end of run` or `continued in the next file`).
 //!
-//! Fields are separated by commas and quoted (RFC 4180) when they hold a comma, a quote or a
-//! line break. Numbers use a full stop as decimal mark.
+//! Fields are separated by commas and quoted (RFC 4180, by the `csv` crate) when they hold a
+//! comma, a quote or a line break. Numbers use a full stop as decimal mark.
 
 use super::format::{Record, RecordBody, goal_name, health_name, severity};
 use super::reader::Recording;
@@ -22,20 +22,22 @@ use std::io::{self, Write};
 pub const CSV_HEADER: &str = "time_s,servo,kind,goal,goal_mm,position_mm,current_a,temperature_c,\
 voltage_v,present_time_ms,flags,health,stalled,severity,text";
 
-/// A field, quoted if it needs to be.
-fn field(s: &str) -> String {
-    if s.contains([',', '"', '\n', '\r']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
-    }
-}
+/// The number of columns of [`CSV_HEADER`].
+pub const CSV_COLUMNS: usize = 15;
 
-/// One record's row (without the line end).
-pub fn csv_row(rec: &Recording, record: &Record) -> String {
+/// One record's fields, unquoted, in the order of [`CSV_HEADER`].
+pub fn csv_fields(rec: &Recording, record: &Record) -> [String; CSV_COLUMNS] {
+    let mut row: [String; CSV_COLUMNS] = Default::default();
+    row[0] = format!("{}.{:06}", record.t_us / 1_000_000, record.t_us % 1_000_000);
+    row[1] = record
+        .body
+        .servo()
+        .map(|s| rec.servo_name(s))
+        .unwrap_or_default();
+    row[2] = record.body.kind_name().to_string();
     // goal, goal_mm, position_mm, current_a, temperature_c, voltage_v, present_time_ms,
     // flags, health, stalled, severity, text
-    let mut cols: [String; 12] = Default::default();
+    let cols = &mut row[3..];
     match &record.body {
         RecordBody::Goal { goal, .. } => {
             cols[0] = goal_name(*goal).to_string();
@@ -85,33 +87,20 @@ pub fn csv_row(rec: &Recording, record: &Record) -> String {
             .to_string();
         }
     }
-    let servo = record
-        .body
-        .servo()
-        .map(|s| rec.servo_name(s))
-        .unwrap_or_default();
-    let mut row = format!(
-        "{}.{:06},{},{}",
-        record.t_us / 1_000_000,
-        record.t_us % 1_000_000,
-        field(&servo),
-        record.body.kind_name()
-    );
-    for c in &cols {
-        row.push(',');
-        row.push_str(&field(c));
-    }
     row
 }
 
 /// Write the recording as CSV; returns the number of rows after the header.
 pub fn write_csv(rec: &Recording, out: &mut impl Write) -> io::Result<u64> {
-    writeln!(out, "{CSV_HEADER}")?;
+    let mut csv = csv::WriterBuilder::new()
+        .terminator(csv::Terminator::Any(b'\n'))
+        .from_writer(out);
+    csv.write_record(CSV_HEADER.split(','))?;
     let mut rows = 0;
     for record in &rec.records {
-        writeln!(out, "{}", csv_row(rec, record))?;
+        csv.write_record(csv_fields(rec, record))?;
         rows += 1;
     }
-    out.flush()?;
+    csv.flush()?;
     Ok(rows)
 }

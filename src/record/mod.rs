@@ -14,9 +14,10 @@
 //! - [`rotate`]: file names and deleting the oldest files;
 //! - [`feed`]: [`StatusFeed`], bus statuses and events → records;
 //! - [`reader`]: [`read_record`], a file back into a [`Recording`], with notes on damage;
-//! - [`summary`](mod@summary), [`csv`], [`plot`]: what `lj9da-bridge record summary|csv|plot` show;
+//! - [`summary`](mod@summary), [`csv`], [`plot`], [`page`]: what `lj9da-bridge record summary|csv|plot`
+//!   show;
 //! - [`cli`]: [`RecordCommand`] and [`cli::run`], the `record` subcommand;
-//! - `crc` and `clock`: CRC-32 and UTC dates, without dependencies.
+//! - `crc` and `clock`: CRC-32 and UTC dates (through `crc32fast` and `time`).
 //!
 //! # Wiring it into a run
 //! ```no_run
@@ -42,6 +43,7 @@ mod crc;
 pub mod csv;
 pub mod feed;
 pub mod format;
+pub mod page;
 pub mod plot;
 pub mod reader;
 pub mod rotate;

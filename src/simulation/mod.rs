@@ -4,6 +4,7 @@
 //! table of what the bridge sees and its telemetry served to a ground station.
 
 pub mod autopilot;
+pub mod live;
 pub mod table;
 
 use crate::config::Config;
@@ -32,7 +33,7 @@ pub struct SitlOptions {
     pub seconds: Option<f64>,
     /// Where to serve telemetry for a ground station.
     pub gcs: Option<String>,
-    /// Print the table as plain snapshots once a second instead of redrawing it.
+    /// Print the table as plain snapshots once a second instead of the live view.
     pub plain: bool,
 }
 
@@ -136,10 +137,19 @@ pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
     );
 
     let (view_tx, view_rx) = watch::channel(BridgeView::default());
-    let table_task = tokio::spawn(table::show(
-        view_rx.clone(),
-        opts.plain || !std::io::stdout().is_terminal(),
-    ));
+    let plain = opts.plain || !std::io::stdout().is_terminal();
+    let mut table_task = if plain {
+        tokio::spawn(table::show(view_rx.clone(), true))
+    } else {
+        let view = view_rx.clone();
+        tokio::spawn(async move {
+            if let Err(e) = live::show(view.clone()).await {
+                // A terminal the view cannot drive still gets the plain table.
+                tracing::warn!("live view: {e}; printing the table instead");
+                table::show(view, true).await;
+            }
+        })
+    };
     let record_dir = cfg.record.dir_for(opts.config_path.as_deref());
     let run_opts = runtime::RunOptions {
         ports,
@@ -150,6 +160,7 @@ pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
     let bridge = tokio::spawn(runtime::run(cfg, run_opts, stop_rx));
 
     let deadline = opts.seconds.map(Duration::from_secs_f64);
+    let mut view_ended = false;
     tokio::select! {
         _ = async {
             match deadline {
@@ -158,10 +169,16 @@ pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
             }
         } => {}
         _ = shutdown_signal() => {}
+        // `q` in the live view.
+        _ = &mut table_task, if !plain => view_ended = true,
     }
     let _ = stop_tx.send(true);
+    if !view_ended {
+        table_task.abort();
+        // The view gives the terminal back before the final table is printed.
+        let _ = table_task.await;
+    }
     let result = bridge.await;
-    table_task.abort();
     if let Some(t) = autopilot_task {
         let _ = t.await;
     }

@@ -1,0 +1,123 @@
+//! `sitl` on a terminal shows a live view that redraws in place: run under a pseudo-terminal,
+//! it takes the alternate screen, rewrites cells there by moving the cursor (no line feeds,
+//! so no growing scroll-back), quits on `q`, and gives the terminal back.
+
+mod tempdir;
+
+use nix::pty::{Winsize, openpty};
+use std::io::{Read, Write};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+use tempdir::TempDir;
+
+const ENTER_ALTERNATE_SCREEN: &str = "\x1b[?1049h";
+const LEAVE_ALTERNATE_SCREEN: &str = "\x1b[?1049l";
+/// What ends every frame drawn: the cursor hidden again.
+const FRAME_END: &str = "\x1b[?25l";
+
+/// Cursor moves to a row and column (`ESC [ row ; col H`) in `s`, with where each ends.
+fn cursor_moves(s: &str) -> Vec<usize> {
+    let b = s.as_bytes();
+    let mut ends = Vec::new();
+    let mut i = 0;
+    while let Some(at) = s[i..].find("\x1b[").map(|p| p + i) {
+        let mut j = at + 2;
+        while j < b.len() && (b[j].is_ascii_digit() || b[j] == b';') {
+            j += 1;
+        }
+        if j < b.len() && b[j] == b'H' && s[at + 2..j].contains(';') {
+            ends.push(j + 1);
+        }
+        i = at + 2;
+    }
+    ends
+}
+
+#[test]
+fn sitl_on_a_terminal_redraws_its_view_in_place_and_quits_on_q() {
+    let size = Winsize {
+        ws_row: 32,
+        ws_col: 160,
+        ws_xpixel: 0,
+        ws_ypixel: 0,
+    };
+    let pty = openpty(Some(&size), None).expect("a pseudo-terminal");
+    let dir = TempDir::new("live-view");
+    let mut child = {
+        let slave = pty.slave;
+        Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
+            .args(["sitl", "--seconds", "120"])
+            .current_dir(dir.path())
+            .stdin(Stdio::from(slave.try_clone().unwrap()))
+            .stdout(Stdio::from(slave.try_clone().unwrap()))
+            .stderr(Stdio::from(slave))
+            .spawn()
+            .expect("lj9da-bridge sitl starts")
+    };
+    // Read the terminal's output until the program has closed it.
+    let mut keyboard = std::fs::File::from(pty.master.try_clone().unwrap());
+    let mut master = std::fs::File::from(pty.master);
+    let (tx, rx) = std::sync::mpsc::channel::<Vec<u8>>();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 4096];
+        loop {
+            match master.read(&mut buf) {
+                Ok(0) | Err(_) => break,
+                Ok(n) => {
+                    if tx.send(buf[..n].to_vec()).is_err() {
+                        break;
+                    }
+                }
+            }
+        }
+    });
+    // A safety net for a run that hangs, not a bound on how long a run takes.
+    let give_up = Instant::now() + Duration::from_secs(300);
+    let mut out = Vec::new();
+    let mut quit_at = None;
+    while let Ok(chunk) = rx.recv_timeout(give_up.saturating_duration_since(Instant::now())) {
+        out.extend_from_slice(&chunk);
+        // Once a few frames have been drawn (each ends by hiding the cursor), press `q`.
+        let frames = String::from_utf8_lossy(&out).matches(FRAME_END).count();
+        if quit_at.is_none() && frames >= 5 {
+            keyboard.write_all(b"q").unwrap();
+            quit_at = Some(Instant::now());
+        }
+    }
+    let status = child.wait().unwrap();
+    let quit_at = quit_at.expect("five frames drawn");
+    let out = String::from_utf8_lossy(&out).into_owned();
+    assert!(status.success(), "{status:?}\n{out}");
+    // `q` ended the run, not `--seconds 120`.
+    assert!(
+        quit_at.elapsed() < Duration::from_secs(100),
+        "q did not quit"
+    );
+
+    let enter = out
+        .find(ENTER_ALTERNATE_SCREEN)
+        .expect("the view takes the alternate screen");
+    let leave = out
+        .rfind(LEAVE_ALTERNATE_SCREEN)
+        .expect("and gives it back at the end");
+    assert!(enter < leave);
+    let live = &out[enter..leave];
+    assert!(
+        !live.contains('\n'),
+        "no line feed while the view is up: nothing scrolls"
+    );
+    // Words are written one by one (the cursor skips the blanks between them).
+    for shown in ["aileron_left", "rudder", "servos", "buses", "quit"] {
+        assert!(live.contains(shown), "{shown} not shown:\n{live:?}");
+    }
+    // The first full frame ends with the help line; later frames rewrite what changed
+    // (positions, currents, the bus's rates) in place, by moving the cursor.
+    let first_frame_end = live.find("quit").unwrap();
+    let redraws = cursor_moves(live)
+        .into_iter()
+        .filter(|&end| end > first_frame_end)
+        .count();
+    assert!(redraws > 0, "the screen was never redrawn:\n{live:?}");
+    // The final table is printed after the terminal is given back.
+    assert!(out[leave..].contains("aileron_left"));
+}
