@@ -374,6 +374,20 @@ impl Rig {
         Self::online_with_force_on(config(ids))
     }
 
+    /// Servo 1 alone, online, every poll a full one, settled; then its next poll handed out
+    /// (and not written): the rig at the instant of that poll, and the poll.
+    fn at_a_full_poll() -> (Self, Transmit) {
+        let mut rig = Self::online_with_force_on(full_polls_only(&[1]));
+        rig.settle();
+        rig.run(ms(50));
+        rig.settle();
+        rig.t = rig.m.poll_timeout().expect("a poll is due").max(rig.t);
+        rig.m.handle_timeout(rig.t);
+        let tx = rig.m.poll_transmit(rig.t).expect("a poll");
+        assert_eq!(tx.kind, TxKind::Poll(id(1)));
+        (rig, tx)
+    }
+
     /// [`Rig::online_with_force`] on the bus `cfg`.
     fn online_with_force_on(cfg: BusConfig) -> Self {
         let ids: Vec<u8> = cfg.servos.iter().map(|s| s.id.get()).collect();
@@ -1467,15 +1481,8 @@ fn a_goal_waits_for_the_reply_in_flight_and_nothing_else() {
 
 #[test]
 fn a_reply_is_awaited_from_its_earliest_end_and_counted_down_byte_by_byte() {
-    let mut rig = Rig::online_with_force_on(full_polls_only(&[1]));
-    rig.settle();
-    rig.run(ms(50));
-    rig.settle();
-    // The next request is a telemetry poll: 8 bytes out, 26 back.
-    rig.t = rig.m.poll_timeout().expect("a poll is due").max(rig.t);
-    rig.m.handle_timeout(rig.t);
-    let tx = rig.m.poll_transmit(rig.t).expect("a poll");
-    assert_eq!(tx.kind, TxKind::Poll(id(1)));
+    let (mut rig, tx) = Rig::at_a_full_poll();
+    // A telemetry poll: 8 bytes out, 26 back.
     let request_end = rig.t + rig.wire(tx.bytes.len());
     let complete_at = rig.m.reply_complete_at().expect("a reply is awaited");
     let deadline = rig.m.poll_timeout().expect("the reply's deadline");
@@ -1812,15 +1819,8 @@ fn a_jittery_autopilot_finds_the_bus_free_and_telemetry_keeps_its_rates() {
 
 #[test]
 fn a_write_later_than_planned_moves_the_reply_deadline_and_nothing_talks_over_the_reply() {
-    let mut rig = Rig::online_with_force_on(full_polls_only(&[1]));
-    rig.settle();
-    rig.run(ms(50));
-    rig.settle();
-    rig.t = rig.m.poll_timeout().expect("a poll is due").max(rig.t);
-    rig.m.handle_timeout(rig.t);
+    let (mut rig, tx) = Rig::at_a_full_poll();
     let planned = rig.t;
-    let tx = rig.m.poll_transmit(planned).expect("a poll");
-    assert_eq!(tx.kind, TxKind::Poll(id(1)));
     // The writing thread was preempted for 3 ms before the write.
     let written = planned + ms(3);
     rig.m.handle_written(written);

@@ -121,15 +121,7 @@ impl LiveModel {
             let r = &s.report;
             let goal_mm = s.goal_mm.map(|g| g as f32);
             let error_mm = r.position_mm.zip(goal_mm).map(|(p, g)| p - g);
-            let mut state = format!("{:?}", s.health);
-            if r.temperature_error {
-                state.push_str(" TEMP-ERROR");
-            } else if r.temperature_alarm {
-                state.push_str(" temp-alarm");
-            }
-            if r.stalled {
-                state.push_str(" STALLED");
-            }
+            let state = super::table::state_text(s);
             row.name.clone_from(&s.name);
             row.bus.clone_from(&s.bus);
             row.id = s.id.get();

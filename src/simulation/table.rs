@@ -32,15 +32,7 @@ pub fn render(view: &BridgeView) -> String {
     );
     for s in &view.servos {
         let r = &s.report;
-        let mut state = format!("{:?}", s.health);
-        if r.temperature_error {
-            state.push_str(" TEMP-ERROR");
-        } else if r.temperature_alarm {
-            state.push_str(" temp-alarm");
-        }
-        if r.stalled {
-            state.push_str(" STALLED");
-        }
+        let state = state_text(s);
         let _ = writeln!(
             out,
             "{:<14} {:<6} {:>3} {:>3} {} {} {} {} {}  {}",
@@ -86,4 +78,20 @@ pub async fn show(mut view: watch::Receiver<BridgeView>, plain: bool) {
         use std::io::Write as _;
         let _ = std::io::stdout().flush();
     }
+}
+
+/// A servo's state as the tables show it: its health, then a temperature error or alarm and a
+/// stall.
+pub fn state_text(s: &crate::runtime::ServoView) -> String {
+    let r = &s.report;
+    let mut state = format!("{:?}", s.health);
+    if r.temperature_error {
+        state.push_str(" TEMP-ERROR");
+    } else if r.temperature_alarm {
+        state.push_str(" temp-alarm");
+    }
+    if r.stalled {
+        state.push_str(" STALLED");
+    }
+    state
 }
