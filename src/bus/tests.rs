@@ -53,6 +53,10 @@ struct FakeServo {
     stuck: bool,
     /// Every reply goes out with a bad sum.
     garble: bool,
+    /// This share of the replies goes out with a bad sum (a deterministic sequence).
+    garble_share: f64,
+    /// Replies so far, for `garble_share`.
+    replies: u64,
     /// Every goal write seen: (position, goal time if written).
     goal_writes: Vec<(i16, Option<u16>)>,
 }
@@ -79,6 +83,8 @@ impl FakeServo {
             refuse_force: false,
             stuck: false,
             garble: false,
+            garble_share: 0.0,
+            replies: 0,
             goal_writes: Vec::new(),
         }
     }
@@ -191,7 +197,11 @@ impl FakeServo {
             data: regs[a..a + n].to_vec(),
         }
         .to_bytes();
-        if self.garble
+        self.replies += 1;
+        // Spread evenly: reply k is garbled when the running share falls behind.
+        let share_due = (self.replies as f64 * self.garble_share).floor()
+            > ((self.replies - 1) as f64 * self.garble_share).floor();
+        if (self.garble || share_due)
             && let Some(sum) = reply.last_mut()
         {
             *sum ^= 0x55;
@@ -1915,4 +1925,44 @@ fn goals_faster_than_the_gathering_do_not_starve_telemetry() {
     let c = rig.m.counters();
     let reads = (c.polls + c.motion_polls) - (c0.polls + c0.motion_polls);
     assert!(reads >= 200, "{reads} telemetry reads in a second");
+}
+
+#[test]
+fn garbled_replies_at_10_20_30_and_60_percent_never_make_a_servo_lost_and_silence_does() {
+    for share in [0.1, 0.2, 0.3, 0.6] {
+        let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+        rig.servo(1).garble_share = share;
+        let from = rig.events.len();
+        let c0 = *rig.m.counters();
+        let answered0 = rig.m.status().servo(id(1)).unwrap().answered;
+        for k in 0..250i16 {
+            for n in 1..=4u8 {
+                rig.set_goal(n, Goal::Position(MmCenti(k * 4 + i16::from(n))));
+            }
+            rig.run(ms(20));
+        }
+        let lost: Vec<_> = rig.events[from..]
+            .iter()
+            .filter(|e| matches!(e, BusEvent::ServoLost { .. }))
+            .collect();
+        assert!(lost.is_empty(), "{share}: {lost:?}");
+        assert_eq!(rig.health(1), Health::Online, "{share}");
+        // Every garbled reply is counted, so the share of bad replies can be told.
+        let bad = rig.m.counters().bad_sums - c0.bad_sums;
+        let answered = rig.m.status().servo(id(1)).unwrap().answered - answered0;
+        let seen = bad as f64 / (bad + answered) as f64;
+        assert!((seen - share).abs() < 0.05, "{share}: {seen:.3} seen");
+        // The servo keeps following its goals.
+        assert_eq!(rig.servo(1).goal, 249 * 4 + 1, "{share}");
+    }
+    // Unplugged: silent, and lost once silent for `offline_after_silence`.
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    rig.servo(1).present = false;
+    let from = rig.events.len();
+    rig.run(ms(500));
+    assert!(
+        rig.events[from..].contains(&BusEvent::ServoLost { id: id(1) }),
+        "{:?}",
+        &rig.events[from..]
+    );
 }
