@@ -103,11 +103,23 @@ pub fn rotate(dir: &Path, budget: u64, keep: &[&Path]) -> io::Result<Vec<PathBuf
 }
 
 /// Create a new, empty record file in `dir` named by `unix_ns` (UTC), never replacing an
-/// existing file.
-pub fn create_record_file(dir: &Path, unix_ns: i64) -> io::Result<(PathBuf, File)> {
+/// existing file. `after`, the part written before it: a part named in the same second gets a
+/// higher suffix than that one, even when the older one was rotated away meanwhile, so that a
+/// name is never used twice in a run and the name order stays the order of writing.
+pub fn create_record_file(
+    dir: &Path,
+    unix_ns: i64,
+    after: Option<&Path>,
+) -> io::Result<(PathBuf, File)> {
     let stamp = Utc::from_unix_ns(unix_ns).file_stamp();
+    let first = after
+        .map(name_order)
+        .filter(|(base, _)| *base == stamp)
+        .map_or(1, |(_, n)| {
+            u32::try_from(n).unwrap_or(u32::MAX).saturating_add(1)
+        });
     let mut last_error = None;
-    for n in 1..=1000u32 {
+    for n in first..=first.saturating_add(1000) {
         let name = if n == 1 {
             format!("{stamp}.{FILE_EXTENSION}")
         } else {
@@ -132,8 +144,29 @@ pub fn sync_dir(dir: &Path) {
 
 #[cfg(test)]
 mod tests {
-    use super::name_order;
+    use super::{create_record_file, name_order};
     use std::path::Path;
+
+    #[test]
+    fn a_part_of_the_same_second_never_takes_the_name_of_one_rotated_away() {
+        let dir = std::env::temp_dir().join(format!("lj9da-rotate-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let t = 1_763_769_599_000_000_000i64;
+        let (first, _) = create_record_file(&dir, t, None).unwrap();
+        let (second, _) = create_record_file(&dir, t, Some(&first)).unwrap();
+        // Both parts of that second are rotated away; the next one still follows them.
+        std::fs::remove_file(&first).unwrap();
+        std::fs::remove_file(&second).unwrap();
+        let (third, _) = create_record_file(&dir, t, Some(&second)).unwrap();
+        let name = |p: &Path| p.file_name().unwrap().to_string_lossy().into_owned();
+        assert!(name(&second).ends_with("Z-2.lj9rec"), "{}", name(&second));
+        assert!(name(&third).ends_with("Z-3.lj9rec"), "{}", name(&third));
+        assert!(name_order(&third) > name_order(&second));
+        // A new second starts again without a suffix.
+        let (next, _) = create_record_file(&dir, t + 1_000_000_000, Some(&third)).unwrap();
+        assert!(!name(&next).contains('-'), "{}", name(&next));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn files_of_the_same_second_sort_by_their_number() {

@@ -568,7 +568,8 @@ impl Writer {
         if let Err(e) = rotate(&self.dir, self.limits.budget_for_others(), &[]) {
             tracing::warn!(dir = %self.dir.display(), "cannot rotate the flight records: {e}");
         }
-        let (path, mut file) = create_record_file(&self.dir, unix_ns)?;
+        let previous = lock(&self.shared.files).last().cloned();
+        let (path, mut file) = create_record_file(&self.dir, unix_ns, previous.as_deref())?;
         self.header.part_start_unix_ns = unix_ns;
         let header = encode_header(&self.header);
         file.write_all(&header)?;
