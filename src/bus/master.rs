@@ -14,13 +14,21 @@
 //!    the wire: one frame with an entry for every commanded servo;
 //! 2. a force write (answered with registers 30–41 to confirm it), before a servo's first
 //!    goal or when a goal asks for force OFF or brake;
-//! 3. one servo's next read, round-robin: start-up reads, the telemetry poll (registers
-//!    42–59), a periodic read-back of registers 30–41, or a probe of an offline servo.
+//! 3. one servo's next read, round-robin: start-up reads, the telemetry poll (registers 42–49,
+//!    position and current; the full 42–59 every `full_telemetry_interval`), a periodic
+//!    read-back of registers 30–41, or a probe of an offline servo;
+//! 4. while a goal is expected too soon for any of those, a read of one position (42–43).
 //!
-//! A long packet expects no reply, so the request behind it follows at once; the reply timeout
-//! of that request counts from the moment the bytes queued before it have left the wire. A
-//! long packet is never queued more than one frame ahead of the wire: goals that arrive while
-//! the wire is busy are coalesced in the bus master, not queued in the port.
+//! Requests (2–4) wait while the autopilot's tick is still coming in (`tick_gather` after its
+//! first goal, and, while the goals keep a rhythm, until every servo commanded in the previous
+//! tick has its goal), and start only if they end before the next tick is expected
+//! ([`GoalRhythm`]): the messages of one tick all reach the wire before the next poll.
+//!
+//! A long packet expects no reply; the reply timeout of a request queued behind one counts from
+//! the moment the bytes before it have left the wire (and from the real write, see
+//! [`BusMaster::handle_written`]). A long packet is never queued more than one frame ahead of
+//! the wire: goals that arrive while the wire is busy are coalesced in the bus master, not
+//! queued in the port.
 
 use super::config::BusConfig;
 use super::event::BusEvent;

@@ -161,7 +161,7 @@ impl GoalRhythm {
     /// next tick is expected, the instant until which the bus should stay free (the end of the
     /// tick's arrival window); `None` when it may start.
     ///
-    /// The window opens [`SPREAD_DEVIATIONS`] mean deviations (plus a slack) before the
+    /// The window opens three mean deviations (plus a slack) before the
     /// predicted tick and closes as long after it, or half a period after it if that
     /// is later: a tick that comes late (a delayed message) still finds the bus free, at the
     /// cost of some polls in that one period.
