@@ -96,28 +96,35 @@ fn python() -> PathBuf {
     python
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn pymavlink_sees_the_bridge_heartbeat_and_servo_telemetry() {
+/// Start the chain with its ground-station link on a free UDP port, run the pymavlink `script`
+/// against that port for `seconds`, stop the chain, and return what the script printed
+/// (`what` names the script in failures).
+async fn run_beside_the_chain(script: &'static str, seconds: &'static str, what: &str) -> String {
     let python = tokio::task::spawn_blocking(python).await.unwrap();
     let port = free_udp_port();
     let chain = Chain::start_with(MAPPING, true, Some(port)).await;
-    let listener = tokio::task::spawn_blocking(move || {
+    let run = tokio::task::spawn_blocking(move || {
         Command::new(&python)
-            .args(["-c", LISTENER, &port.to_string(), "6"])
+            .args(["-c", script, &port.to_string(), seconds])
             .output()
     });
-    let out = tokio::time::timeout(Duration::from_secs(60), listener)
+    let out = tokio::time::timeout(Duration::from_secs(60), run)
         .await
-        .expect("pymavlink listener finished")
+        .unwrap_or_else(|_| panic!("pymavlink {what} did not finish in 60 s"))
         .unwrap()
-        .expect("pymavlink listener ran");
+        .unwrap_or_else(|e| panic!("pymavlink {what} did not run: {e}"));
     chain.stop().await;
-    let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
-        "listener failed: {}",
+        "{what} failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pymavlink_sees_the_bridge_heartbeat_and_servo_telemetry() {
+    let stdout = run_beside_the_chain(LISTENER, "6", "listener").await;
     // The vehicle's system id 1, MAV_TYPE_SERVO, MAV_AUTOPILOT_INVALID as pymavlink names them.
     assert!(
         stdout.lines().any(|l| l == "heartbeat 1 servo invalid"),
@@ -165,26 +172,7 @@ for s in sorted(seen):
 /// well as the bridge's own.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_ground_station_link_carries_an_autopilot_heartbeat_for_qgroundcontrol() {
-    let python = tokio::task::spawn_blocking(python).await.unwrap();
-    let port = free_udp_port();
-    let chain = Chain::start_with(MAPPING, true, Some(port)).await;
-    let listener = tokio::task::spawn_blocking(move || {
-        Command::new(&python)
-            .args(["-c", VEHICLE_LISTENER, &port.to_string(), "4"])
-            .output()
-    });
-    let out = tokio::time::timeout(Duration::from_secs(60), listener)
-        .await
-        .expect("pymavlink listener finished")
-        .unwrap()
-        .expect("pymavlink listener ran");
-    chain.stop().await;
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "listener failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let stdout = run_beside_the_chain(VEHICLE_LISTENER, "4", "listener").await;
     assert!(
         stdout.lines().any(|l| l == "heartbeat 1 1 autopilot"),
         "no autopilot heartbeat on the GCS link: {stdout}"
@@ -227,26 +215,7 @@ for command, params, frame in tests:
 /// neither retries nor times out.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn command_int_to_the_bridge_is_answered() {
-    let python = tokio::task::spawn_blocking(python).await.unwrap();
-    let port = free_udp_port();
-    let chain = Chain::start_with(MAPPING, true, Some(port)).await;
-    let sender = tokio::task::spawn_blocking(move || {
-        Command::new(&python)
-            .args(["-c", COMMAND_SENDER, &port.to_string(), "10"])
-            .output()
-    });
-    let out = tokio::time::timeout(Duration::from_secs(60), sender)
-        .await
-        .expect("pymavlink sender finished")
-        .unwrap()
-        .expect("pymavlink sender ran");
-    chain.stop().await;
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "sender failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let stdout = run_beside_the_chain(COMMAND_SENDER, "10", "sender").await;
     // MAV_CMD_DO_SET_SERVO (183) ACCEPTED (0); MAV_CMD_DO_REPOSITION (192) UNSUPPORTED (3).
     assert!(stdout.lines().any(|l| l == "ack 183 0"), "{stdout}");
     assert!(stdout.lines().any(|l| l == "ack 192 3"), "{stdout}");

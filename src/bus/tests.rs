@@ -1767,6 +1767,17 @@ fn no_goal_of_a_tick_waits_behind_a_poll_started_after_the_tick_began() {
     assert!(waits.iter().all(|w| w.1.is_none()), "{waits:?}");
 }
 
+/// No goal message found a poll in flight when it came.
+fn assert_no_goal_behind_a_poll(waits: &[(Duration, Option<TxKind>)]) {
+    let behind: Vec<_> = waits.iter().filter(|w| w.1.is_some()).collect();
+    assert!(
+        behind.is_empty(),
+        "{} of {}: {behind:?}",
+        behind.len(),
+        waits.len()
+    );
+}
+
 /// A deterministic uniform offset in ±`range_us` for tick `k`.
 fn uniform(k: usize, salt: usize, range_us: i64) -> i64 {
     let mut x = (k as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (salt as u64) << 32;
@@ -1788,13 +1799,7 @@ fn a_jittery_autopilot_finds_the_bus_free_and_telemetry_keeps_its_rates() {
         |k, _| uniform(k, 0, 1000),
         &[(PORT0, us(0)), (PORT1, us(100))],
     );
-    let behind: Vec<_> = waits.iter().filter(|w| w.1.is_some()).collect();
-    assert!(
-        behind.is_empty(),
-        "{} of {}: {behind:?}",
-        behind.len(),
-        waits.len()
-    );
+    assert_no_goal_behind_a_poll(&waits);
     let c = rig.m.counters();
     let seconds = (rig.t - t0).as_secs_f64();
     let motion_hz =
@@ -1818,13 +1823,7 @@ fn a_jittery_autopilot_finds_the_bus_free_and_telemetry_keeps_its_rates() {
         .filter(|w| matches!(w.1, Some(TxKind::Poll(_))))
         .collect();
     assert!(behind_full.is_empty(), "{behind_full:?}");
-    let behind: Vec<_> = waits.iter().filter(|w| w.1.is_some()).collect();
-    assert!(
-        behind.is_empty(),
-        "{} of {}: {behind:?}",
-        behind.len(),
-        waits.len()
-    );
+    assert_no_goal_behind_a_poll(&waits);
 }
 
 #[test]
