@@ -42,10 +42,11 @@
 //!
 //! One file per idea: [`error`] (located errors), `raw` (the file as written), [`mavlink`]
 //! (`[mavlink]`, `[telemetry]`), [`bus`], [`servo`] (and the PWM mapping), [`bridge`], `table`
-//! (the `check` output).
+//! (the `check` output), [`edit`] (changes made by the running bridge, saved into the file).
 
 pub mod bridge;
 pub mod bus;
+pub mod edit;
 pub mod error;
 pub mod mavlink;
 mod raw;
