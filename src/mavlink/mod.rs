@@ -4,6 +4,7 @@
 //! - [`commands`]: COMMAND_LONG / COMMAND_INT in one form, and which are the bridge's.
 //! - [`core`]: the sans-IO bridge logic (autopilot, mapping, commands, failsafe, stream
 //!   requests, telemetry schedule).
+//! - [`params`]: the MAVLink parameters, and the mapping-file edit each change makes.
 //! - [`schedule`]: when each telemetry carrier goes out, and values only on change.
 //! - [`telemetry`]: HEARTBEAT, NAMED_VALUE_FLOAT, ESC_INFO/ESC_STATUS and STATUSTEXT builders.
 //! - [`statustext`]: event texts, severities and the flood guard.
@@ -14,6 +15,7 @@ pub mod commands;
 pub mod core;
 pub mod health;
 pub mod outputs;
+pub mod params;
 pub mod reply_quality;
 pub mod schedule;
 pub mod statustext;
