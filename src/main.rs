@@ -144,6 +144,7 @@ fn main() -> ExitCode {
                 let opts = runtime::RunOptions {
                     record_dir: Some(cfg.record.dir_for(Some(&config))),
                     check_latency: true,
+                    mapping: runtime::mapping_file(Some(&config)),
                     ..Default::default()
                 };
                 match runtime::run(cfg, opts, stop_rx).await {

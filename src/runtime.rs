@@ -9,6 +9,7 @@ use crate::bus::{
     BusConfig, BusEvent, BusHandle, BusStatus, Health, ServoSetup, ShutdownForce, spawn_bus,
     spawn_bus_observed,
 };
+use crate::config::edit::MappingFile;
 use crate::config::{Config, ExitAction};
 use crate::mavlink::reply_quality::{QualityChange, ReplyQuality};
 use crate::mavlink::{
@@ -192,6 +193,8 @@ pub fn report_of(s: &crate::bus::ServoStatus) -> ServoReport {
         temperature_error: s.flags.temperature_error() || s.health == Health::TemperatureError,
         stalled: s.stalled,
         error_count: s.timeouts.min(u64::from(u32::MAX)) as u32,
+        model: s.identity.model,
+        firmware: s.identity.firmware,
     }
 }
 
@@ -271,6 +274,28 @@ pub struct RunOptions {
     pub record_dir: Option<PathBuf>,
     /// Check each bus port's USB latency timer first (real adapters only).
     pub check_latency: bool,
+    /// The mapping file that parameter changes from a ground station are saved into;
+    /// `None`: parameters can be read but not changed.
+    pub mapping: Option<MappingFile>,
+}
+
+/// The mapping file that parameter changes go into: the file at `path`, or the built-in
+/// airframe of `sitl` held in memory. `None` (said in the log): parameters are read-only.
+pub fn mapping_file(path: Option<&std::path::Path>) -> Option<MappingFile> {
+    let file = match path {
+        Some(path) => MappingFile::open(path),
+        None => MappingFile::in_memory(
+            crate::config::SITL_DEFAULT_TOML,
+            crate::config::SITL_DEFAULT_ORIGIN,
+        ),
+    };
+    match file {
+        Ok(file) => Some(file),
+        Err(e) => {
+            tracing::warn!("parameters are read-only: {e}");
+            None
+        }
+    }
 }
 
 /// Start the flight record, or say why there is none and carry on without it.
@@ -303,6 +328,7 @@ pub async fn run(
         view,
         record_dir,
         check_latency,
+        mut mapping,
     } = opts;
     if check_latency {
         // A run on the aircraft (the `run` command): its adapters and its memory.
@@ -409,6 +435,16 @@ pub async fn run(
                     }
                 }
             }
+        }
+        while let Some(set) = core.poll_param_set() {
+            let result = match mapping.as_mut() {
+                Some(file) => file.apply(&set.edits).map_err(|e| {
+                    tracing::warn!("parameter {} = {} refused: {e}", set.name, set.value);
+                    e.reason()
+                }),
+                None => Err("no mapping file to change".to_string()),
+            };
+            core.param_set_done(&set, result, Instant::now());
         }
         // One message's goals leave in one long packet per bus.
         while let Some((servo, goal)) = core.poll_command() {

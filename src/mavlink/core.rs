@@ -33,6 +33,8 @@
 use super::commands::{Command, Handling, handling};
 use super::health::{BridgeEvent, ServoReport};
 use super::outputs::{ChannelValues, from_actuator_output_status, from_servo_output_raw};
+use super::param_server::{ParamOut, ParamServer, ParamSet};
+use super::params::{ServoInfo, copy_tunables};
 use super::schedule::TelemetrySchedule;
 use super::statustext::{Throttle, describe, with_folded};
 use super::telemetry;
@@ -40,7 +42,8 @@ use crate::bus::Goal;
 use crate::config::{Config, FailsafeAction, Source};
 use mavlink::MavHeader;
 use mavlink::dialects::common::{
-    COMMAND_ACK_DATA, COMMAND_LONG_DATA, MavAutopilot, MavCmd, MavMessage, MavResult, MavType,
+    AUTOPILOT_VERSION_DATA, COMMAND_ACK_DATA, COMMAND_LONG_DATA, COMPONENT_INFORMATION_BASIC_DATA,
+    MavAutopilot, MavCmd, MavMessage, MavProtocolCapability, MavResult, MavType,
 };
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
@@ -76,6 +79,19 @@ const STATUSTEXT_HOLD_OFF: Duration = Duration::from_secs(3);
 /// MAVLink message ids of the two output messages.
 const SERVO_OUTPUT_RAW_ID: u32 = 36;
 const ACTUATOR_OUTPUT_STATUS_ID: u32 = 375;
+/// The messages that say what a component is.
+const AUTOPILOT_VERSION_ID: u32 = 148;
+const COMPONENT_INFORMATION_BASIC_ID: u32 = 396;
+
+/// The bridge's version as AUTOPILOT_VERSION carries it: major, minor, patch, then the
+/// release type (255: official).
+fn software_version() -> u32 {
+    let part = |s: &str| s.parse::<u32>().unwrap_or(0).min(255);
+    (part(env!("CARGO_PKG_VERSION_MAJOR")) << 24)
+        | (part(env!("CARGO_PKG_VERSION_MINOR")) << 16)
+        | (part(env!("CARGO_PKG_VERSION_PATCH")) << 8)
+        | 255
+}
 
 #[derive(Debug)]
 struct ServoSlot {
@@ -124,6 +140,11 @@ pub struct BridgeCore {
     commands: VecDeque<(usize, Goal)>,
     outgoing: VecDeque<Outgoing>,
     notes: Vec<String>,
+    params: ParamServer,
+    /// The answer to a MAV_CMD_REQUEST_MESSAGE, sent after its ACK.
+    described: Option<MavMessage>,
+    /// What was read from each servo (model, firmware), for the read-only parameters.
+    servo_info: Vec<ServoInfo>,
 }
 
 impl BridgeCore {
@@ -152,7 +173,6 @@ impl BridgeCore {
             rate_advice_given: false,
             source_refused: false,
             servos,
-            cfg,
             started: now,
             channels: [None; 33],
             last_output_at: None,
@@ -166,6 +186,10 @@ impl BridgeCore {
             commands: VecDeque::new(),
             outgoing: VecDeque::new(),
             notes: Vec::new(),
+            params: ParamServer::new(&cfg, now),
+            described: None,
+            servo_info: vec![ServoInfo::default(); servo_count],
+            cfg,
         }
     }
 
@@ -246,6 +270,21 @@ impl BridgeCore {
         }
         if let MavMessage::COMMAND_INT(cmd) = msg {
             self.handle_command(link, from, &Command::from_int(cmd), now);
+            return;
+        }
+        if matches!(
+            msg,
+            MavMessage::PARAM_REQUEST_LIST(_)
+                | MavMessage::PARAM_REQUEST_READ(_)
+                | MavMessage::PARAM_SET(_)
+        ) {
+            if let Some(system_id) = self.system_id {
+                let us = (system_id, self.cfg.mavlink.component_id);
+                let out = self
+                    .params
+                    .handle(link, msg, us, &self.cfg, &self.servo_info);
+                self.send_params(out);
+            }
             return;
         }
         if let MavMessage::COMMAND_ACK(ack) = msg {
@@ -369,6 +408,14 @@ impl BridgeCore {
         let result = match cmd.command {
             MavCmd::MAV_CMD_DO_SET_SERVO => self.do_set_servo(cmd.params[0], cmd.params[1], now),
             MavCmd::MAV_CMD_DO_SET_ACTUATOR => self.do_set_actuator(&cmd.params, now),
+            MavCmd::MAV_CMD_REQUEST_MESSAGE if how == Handling::Own => {
+                self.describe_self(cmd.params[0], now)
+            }
+            // Superseded by REQUEST_MESSAGE, and still sent by ground stations of the time.
+            #[allow(deprecated)]
+            MavCmd::MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES if how == Handling::Own => {
+                self.describe_self(AUTOPILOT_VERSION_ID as f32, now)
+            }
             _ => MavResult::MAV_RESULT_UNSUPPORTED,
         };
         if how == Handling::Broadcast && result != MavResult::MAV_RESULT_ACCEPTED {
@@ -387,6 +434,46 @@ impl BridgeCore {
             link: Some(link),
             sender: None,
         });
+        // The protocol: the ACK first, then the message asked for.
+        if result == MavResult::MAV_RESULT_ACCEPTED
+            && let Some(message) = self.described.take()
+        {
+            self.outgoing.push_back(Outgoing {
+                message,
+                link: Some(link),
+                sender: None,
+            });
+        }
+    }
+
+    /// MAV_CMD_REQUEST_MESSAGE for AUTOPILOT_VERSION or COMPONENT_INFORMATION_BASIC: what the
+    /// bridge is (name, version, and that it speaks MAVLink 2 with C-cast parameters), which
+    /// ground stations show for a component. Any other message is DENIED.
+    fn describe_self(&mut self, message_id: f32, now: Instant) -> MavResult {
+        let capabilities = MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+            | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2
+            | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_COMMAND_INT;
+        let message = if message_id == AUTOPILOT_VERSION_ID as f32 {
+            MavMessage::AUTOPILOT_VERSION(AUTOPILOT_VERSION_DATA {
+                capabilities,
+                flight_sw_version: software_version(),
+                ..Default::default()
+            })
+        } else if message_id == COMPONENT_INFORMATION_BASIC_ID as f32 {
+            MavMessage::COMPONENT_INFORMATION_BASIC(COMPONENT_INFORMATION_BASIC_DATA {
+                capabilities,
+                time_boot_ms: u32::try_from(now.duration_since(self.started).as_millis())
+                    .unwrap_or(u32::MAX),
+                vendor_name: "lj9da-bridge".into(),
+                model_name: "LJ9DA41 RS485 servo bridge".into(),
+                software_version: env!("CARGO_PKG_VERSION").into(),
+                ..Default::default()
+            })
+        } else {
+            return MavResult::MAV_RESULT_DENIED;
+        };
+        self.described = Some(message);
+        MavResult::MAV_RESULT_ACCEPTED
     }
 
     /// MAV_CMD_DO_SET_SERVO: param 1 = output channel, param 2 = PWM in µs. Denied, and
@@ -572,6 +659,91 @@ impl BridgeCore {
                 sender: None,
             });
         }
+        for (info, r) in self.servo_info.iter_mut().zip(reports) {
+            info.model = r.model.or(info.model);
+            info.firmware = r.firmware.or(info.firmware);
+        }
+        let out = self.params.due(now);
+        self.send_params(out);
+    }
+
+    fn send_params(&mut self, out: Vec<ParamOut>) {
+        for out in out {
+            let (message, link) = match out {
+                ParamOut::Value { link, index } => (
+                    self.params
+                        .value_message(index, &self.cfg, &self.servo_info),
+                    link,
+                ),
+                ParamOut::Text(severity, text) => {
+                    self.notes.push(text.clone());
+                    (telemetry::statustext(severity, &text), None)
+                }
+            };
+            self.outgoing.push_back(Outgoing {
+                message,
+                link,
+                sender: None,
+            });
+        }
+    }
+
+    /// The next parameter change for the caller to make in the mapping file; report how it
+    /// went with [`BridgeCore::param_set_done`].
+    pub fn poll_param_set(&mut self) -> Option<ParamSet> {
+        self.params.poll_set()
+    }
+
+    /// How a change from [`BridgeCore::poll_param_set`] went: the mapping file as it now
+    /// reads, or why it refused the change. An accepted change takes effect at once: a servo
+    /// that is not in failsafe moves to its channel's latest value under the new mapping.
+    pub fn param_set_done(&mut self, set: &ParamSet, result: Result<Config, String>, now: Instant) {
+        let before = self.cfg.clone();
+        let result = result.map(|changed| {
+            copy_tunables(&changed, &mut self.cfg);
+            self.notes
+                .push(format!("parameter {} set to {}", set.name, set.value));
+        });
+        let ok = result.is_ok();
+        let out = self
+            .params
+            .set_done(set, result, &before, &self.cfg, &self.servo_info);
+        self.send_params(out);
+        if ok {
+            self.reconfigured(&before, now);
+        }
+    }
+
+    /// Apply what a parameter change altered in the configuration.
+    fn reconfigured(&mut self, before: &Config, now: Instant) {
+        if self.cfg.mavlink.output_rate_hz != before.mavlink.output_rate_hz {
+            self.requested_rate_hz = self.cfg.mavlink.output_rate_hz;
+            self.stream_ok = false;
+            self.source_refused = false;
+            self.rate_advice_given = false;
+            self.next_stream_request = now;
+        }
+        for i in 0..self.servos.len() {
+            let channel = self.cfg.servos[i].channel;
+            let slot = &mut self.servos[i];
+            if slot.channel != channel {
+                slot.channel = channel;
+                slot.override_latch = None;
+                slot.missing_announced = false;
+                slot.ever_carried = false;
+                slot.carried_at = self.last_output_at.map(|_| now);
+            }
+            if slot.failsafe || slot.override_latch.is_some() {
+                continue;
+            }
+            if let Some(us) = self.channels[usize::from(channel)] {
+                let command = match self.cfg.servos[i].map_pwm(us) {
+                    Some(position) => Goal::Position(position),
+                    None => Goal::Hold,
+                };
+                self.command(i, command);
+            }
+        }
     }
 
     fn request_stream(&mut self) {
@@ -692,6 +864,9 @@ impl BridgeCore {
             t = t.min(self.next_stream_request);
         }
         if let Some(d) = self.throttle.next_deadline() {
+            t = t.min(d);
+        }
+        if let Some(d) = self.params.next_deadline() {
             t = t.min(d);
         }
         t

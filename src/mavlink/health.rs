@@ -30,6 +30,10 @@ pub struct ServoReport {
     pub stalled: bool,
     /// Replies lost or rejected since start.
     pub error_count: u32,
+    /// The servo's model number (registers 0–1), once read.
+    pub model: Option<u16>,
+    /// The servo's firmware version (register 2), once read.
+    pub firmware: Option<u8>,
 }
 
 impl ServoReport {

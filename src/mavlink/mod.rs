@@ -4,6 +4,7 @@
 //! - [`commands`]: COMMAND_LONG / COMMAND_INT in one form, and which are the bridge's.
 //! - [`core`]: the sans-IO bridge logic (autopilot, mapping, commands, failsafe, stream
 //!   requests, telemetry schedule).
+//! - [`param_server`]: the parameter protocol (list, read, set) served by the bridge's component.
 //! - [`params`]: the MAVLink parameters, and the mapping-file edit each change makes.
 //! - [`schedule`]: when each telemetry carrier goes out, and values only on change.
 //! - [`telemetry`]: HEARTBEAT, NAMED_VALUE_FLOAT, ESC_INFO/ESC_STATUS and STATUSTEXT builders.
@@ -15,6 +16,7 @@ pub mod commands;
 pub mod core;
 pub mod health;
 pub mod outputs;
+pub mod param_server;
 pub mod params;
 pub mod reply_quality;
 pub mod schedule;

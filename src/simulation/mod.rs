@@ -156,6 +156,11 @@ pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
         view: Some(view_tx),
         record_dir: Some(record_dir),
         check_latency: false,
+        mapping: match (&opts.config, &opts.config_path) {
+            (None, _) => runtime::mapping_file(None),
+            (Some(_), Some(path)) => runtime::mapping_file(Some(path)),
+            (Some(_), None) => None,
+        },
     };
     let bridge = tokio::spawn(runtime::run(cfg, run_opts, stop_rx));
 

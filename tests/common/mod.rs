@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 use lj9da_bridge::config::Config;
+use lj9da_bridge::config::edit::MappingFile;
 use lj9da_bridge::runtime::{self, BridgeView};
 use lj9da_bridge::simulation::autopilot::{self, AutopilotConfig, AutopilotHandle};
 use lj9da_sim::{SimBus, SimConfig};
@@ -132,6 +133,8 @@ pub struct ChainOptions {
     pub gcs_keep: Option<fn(&MavMessage) -> bool>,
     /// The simulators' fault seed (the same seed replays the same corrupted and dropped replies).
     pub sim_seed: Option<u64>,
+    /// The file parameter changes are saved into (it must hold `mapping`); `None`: in memory.
+    pub mapping_file: Option<PathBuf>,
 }
 
 pub struct Chain {
@@ -178,6 +181,7 @@ impl Chain {
             stable_links,
             gcs_keep,
             sim_seed,
+            mapping_file,
         } = opts;
         let mut cfg = Config::parse(mapping, "test mapping").expect("test mapping is valid");
         let mut sims = Vec::new();
@@ -232,6 +236,10 @@ impl Chain {
             view: Some(view_tx),
             record_dir: Some(record_dir.clone()),
             check_latency: false,
+            mapping: Some(match &mapping_file {
+                Some(path) => MappingFile::open(path).expect("the mapping file opens"),
+                None => MappingFile::in_memory(mapping, "test mapping").expect("valid"),
+            }),
         };
         let bridge = tokio::spawn(runtime::run(cfg.clone(), opts, stop_rx.clone()));
         let handle = AutopilotHandle::default();
