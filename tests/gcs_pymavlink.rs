@@ -9,7 +9,7 @@
 
 mod common;
 
-use common::{Chain, free_udp_port};
+use common::{Chain, ChainOptions, free_udp_port};
 use std::path::PathBuf;
 use std::process::Command;
 use std::time::Duration;
@@ -100,9 +100,27 @@ fn python() -> PathBuf {
 /// against that port for `seconds`, stop the chain, and return what the script printed
 /// (`what` names the script in failures).
 async fn run_beside_the_chain(script: &'static str, seconds: &'static str, what: &str) -> String {
+    run_beside(MAPPING, None, script, seconds, what).await
+}
+
+/// As [`run_beside_the_chain`], for `mapping`; with `file` (holding `mapping`) the bridge saves
+/// parameter changes there.
+async fn run_beside(
+    mapping: &str,
+    file: Option<PathBuf>,
+    script: &'static str,
+    seconds: &'static str,
+    what: &str,
+) -> String {
     let python = tokio::task::spawn_blocking(python).await.unwrap();
     let port = free_udp_port();
-    let chain = Chain::start_with(MAPPING, true, Some(port)).await;
+    let opts = ChainOptions {
+        autopilot: true,
+        gcs_port: Some(port),
+        mapping_file: file,
+        ..ChainOptions::default()
+    };
+    let chain = Chain::start_opts(mapping, opts).await;
     let run = tokio::task::spawn_blocking(move || {
         Command::new(&python)
             .args(["-c", script, &port.to_string(), seconds])
@@ -219,4 +237,175 @@ async fn command_int_to_the_bridge_is_answered() {
     // MAV_CMD_DO_SET_SERVO (183) ACCEPTED (0); MAV_CMD_DO_REPOSITION (192) UNSUPPORTED (3).
     assert!(stdout.lines().any(|l| l == "ack 183 0"), "{stdout}");
     assert!(stdout.lines().any(|l| l == "ack 192 3"), "{stdout}");
+}
+
+const PARAM_CLIENT: &str = r#"
+import math, os, sys, time
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil
+port, seconds = int(sys.argv[1]), float(sys.argv[2])
+m = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="common", source_system=255, source_component=190)
+mav = mavutil.mavlink
+end = time.time() + seconds
+while time.time() < end:
+    msg = m.recv_match(type="HEARTBEAT", blocking=True, timeout=0.2)
+    if msg is not None and msg.get_srcComponent() == 140:
+        break
+
+def values_until(quiet, stop=lambda v: False):
+    got = []
+    last = time.time()
+    while time.time() - last < quiet and time.time() < end:
+        msg = m.recv_match(type=["PARAM_VALUE", "STATUSTEXT"], blocking=True, timeout=0.1)
+        if msg is None or msg.get_srcComponent() != 140:
+            continue
+        last = time.time()
+        got.append(msg)
+        if msg.get_type() == "PARAM_VALUE" and stop(msg):
+            break
+    return got
+
+# QGroundControl's way: every component at once.
+m.mav.param_request_list_send(1, 0)
+listed = [v for v in values_until(1.5) if v.get_type() == "PARAM_VALUE"]
+count = listed[0].param_count if listed else 0
+print("list", count, len(listed), len({v.param_index for v in listed}))
+print("types", sorted({v.param_type for v in listed}))
+byname = {v.param_id: v.param_value for v in listed}
+print("value", "S1_PWM_TRIM", byname.get("S1_PWM_TRIM"))
+print("value", "BRG_FS_MS", byname.get("BRG_FS_MS"))
+print("value", "S2_ID", byname.get("S2_ID"))
+
+# MAVProxy's `param fetch NAME`, aimed at the component.
+m.mav.param_request_read_send(1, 140, b"S2_CHAN", -1)
+got = values_until(1.0, lambda v: v.param_id == "S2_CHAN")
+print("read", [(v.param_id, v.param_value) for v in got if v.get_type() == "PARAM_VALUE"])
+
+def set_param(name, value, ptype=mav.MAV_PARAM_TYPE_REAL32):
+    m.mav.param_set_send(1, 140, name.encode(), value, ptype)
+    got = values_until(0.7)
+    vals = [(v.param_id, v.param_value) for v in got if v.get_type() == "PARAM_VALUE"]
+    texts = [v.text for v in got if v.get_type() == "STATUSTEXT" and v.text.startswith(name)]
+    texts += [v.text for v in got if v.get_type() == "STATUSTEXT" and "no parameter" in v.text]
+    return vals, texts
+
+for name, value, ptype in [
+    ("S1_PWM_TRIM", 1500.0, mav.MAV_PARAM_TYPE_REAL32),
+    ("S1_PWM_TRIM", 3000.0, mav.MAV_PARAM_TYPE_REAL32),
+    ("S1_PWM_TRIM", float("nan"), mav.MAV_PARAM_TYPE_REAL32),
+    ("S1_PWM_TRIM", 1490.0, mav.MAV_PARAM_TYPE_INT32),
+    ("S2_ID", 9.0, mav.MAV_PARAM_TYPE_REAL32),
+    ("NO_SUCH_PARAM", 1.0, mav.MAV_PARAM_TYPE_REAL32),
+]:
+    vals, texts = set_param(name, value, ptype)
+    print("set", name, value, ptype, vals, texts)
+
+# A flood of list requests: the bridge answers, at most one pass queued per link, and lives.
+for _ in range(300):
+    m.mav.param_request_list_send(1, 140)
+flood = [v for v in values_until(1.5) if v.get_type() == "PARAM_VALUE"]
+print("flood", len(flood))
+alive = None
+t = time.time()
+while time.time() - t < 3 and alive is None:
+    msg = m.recv_match(type="HEARTBEAT", blocking=True, timeout=0.2)
+    if msg is not None and msg.get_srcComponent() == 140:
+        alive = True
+print("alive", alive)
+"#;
+
+const PARAM_MAPPING: &str = r#"
+# An airframe whose trims are set from the ground station.
+[mavlink]
+connection = "udpin:127.0.0.1:14560"
+
+[[bus]]
+name = "wing"
+port = "sim"
+turnaround_ms = 20
+
+[[servo]]
+name = "aileron_left"
+bus = "wing"
+id = 1
+channel = 1
+pwm_trim_us = 1520   # bench trim
+
+[[servo]]
+name = "rudder"
+bus = "wing"
+id = 2
+channel = 4
+"#;
+
+/// pymavlink as the ground station: the whole list (as QGroundControl asks for it), a read
+/// by name (as MAVProxy's `param fetch`), a set that is saved into the mapping file with its
+/// comments, and refusals (out of range, NaN, wrong type, read-only, unknown name) that
+/// answer with the old value or a STATUSTEXT and write nothing; a flood of requests is
+/// answered without growing the queue.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_ground_station_reads_and_sets_parameters_and_the_file_keeps_them() {
+    let path = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("params-{}.toml", std::process::id()));
+    std::fs::write(&path, PARAM_MAPPING).unwrap();
+    let stdout = run_beside(
+        PARAM_MAPPING,
+        Some(path.clone()),
+        PARAM_CLIENT,
+        "25",
+        "parameter client",
+    )
+    .await;
+    let line = |prefix: &str| {
+        stdout
+            .lines()
+            .find(|l| l.starts_with(prefix))
+            .unwrap_or_else(|| panic!("no {prefix:?} in {stdout}"))
+            .to_string()
+    };
+    // 5 bridge parameters and 14 per servo; every index once; all REAL32 (9).
+    assert_eq!(line("list "), "list 33 33 33", "{stdout}");
+    assert_eq!(line("types "), "types [9]", "{stdout}");
+    assert_eq!(line("value S1_PWM_TRIM"), "value S1_PWM_TRIM 1520.0");
+    assert_eq!(line("value BRG_FS_MS"), "value BRG_FS_MS 500.0");
+    assert_eq!(line("value S2_ID"), "value S2_ID 2.0");
+    assert_eq!(line("read "), "read [('S2_CHAN', 4.0)]", "{stdout}");
+    assert_eq!(
+        line("set S1_PWM_TRIM 1500.0"),
+        "set S1_PWM_TRIM 1500.0 9 [('S1_PWM_TRIM', 1500.0)] []"
+    );
+    let refused = line("set S1_PWM_TRIM 3000.0");
+    assert!(
+        refused.starts_with("set S1_PWM_TRIM 3000.0 9 [('S1_PWM_TRIM', 1500.0)] ['S1_PWM_TRIM 3000: "),
+        "{refused}"
+    );
+    assert_eq!(
+        line("set S1_PWM_TRIM nan"),
+        "set S1_PWM_TRIM nan 9 [('S1_PWM_TRIM', 1500.0)] ['S1_PWM_TRIM NaN: not a number']"
+    );
+    assert_eq!(
+        line("set S1_PWM_TRIM 1490.0 6"),
+        "set S1_PWM_TRIM 1490.0 6 [('S1_PWM_TRIM', 1500.0)] ['S1_PWM_TRIM 1490: type 6 not REAL32']"
+    );
+    assert_eq!(
+        line("set S2_ID"),
+        "set S2_ID 9.0 9 [('S2_ID', 2.0)] ['S2_ID 9: read-only']"
+    );
+    assert_eq!(
+        line("set NO_SUCH_PARAM"),
+        "set NO_SUCH_PARAM 1.0 9 [] ['no parameter NO_SUCH_PARAM']"
+    );
+    let flood: usize = line("flood ")[6..].parse().unwrap();
+    assert!((33..=66).contains(&flood), "{stdout}");
+    assert_eq!(line("alive "), "alive True");
+
+    // Saved in place, comments kept; what `check` and a restart read.
+    let saved = std::fs::read_to_string(&path).unwrap();
+    assert_eq!(
+        saved,
+        PARAM_MAPPING.replace("pwm_trim_us = 1520   # bench", "pwm_trim_us = 1500   # bench")
+    );
+    let cfg = lj9da_bridge::config::Config::load(&path).unwrap();
+    assert_eq!(cfg.servos[0].pwm.trim_us, 1500);
+    let _ = std::fs::remove_file(&path);
 }
