@@ -122,6 +122,7 @@ fn main() -> ExitCode {
             Ok(cfg) => {
                 println!("{}: ok", config.display());
                 print!("{}", cfg.resolved_table());
+                print!("\n{}", lj9da_bridge::mavlink::params::listing(&cfg));
                 for warning in cfg.warnings() {
                     println!("\n{warning}");
                 }

@@ -350,6 +350,42 @@ impl Param {
     }
 }
 
+/// The parameters and their values as `check` prints them: one line for the bridge, one per
+/// servo (read-only values from the servo itself show as `?`).
+pub fn listing(cfg: &Config) -> String {
+    let table = ParamTable::new(cfg);
+    let mut out = format!(
+        "MAVLink parameters of component {} ({} in all; set from a ground station, saved into this file):\n",
+        cfg.mavlink.component_id,
+        table.len()
+    );
+    let mut line = |label: &str, params: &mut dyn Iterator<Item = Param>| {
+        let items: Vec<String> = params
+            .map(|p| match p {
+                Param::Servo(_, ServoParam::Model | ServoParam::Firmware) => {
+                    format!("{}=?", p.name())
+                }
+                _ => format!("{}={}", p.name(), p.value(cfg, &[])),
+            })
+            .collect();
+        out.push_str(&format!("  {label}: {}\n", items.join(" ")));
+    };
+    line(
+        "bridge",
+        &mut table.iter().filter(|p| matches!(p, Param::Bridge(_))),
+    );
+    for (i, servo) in cfg.servos.iter().enumerate() {
+        line(
+            &servo.name,
+            &mut table
+                .iter()
+                .filter(|p| matches!(p, Param::Servo(j, _) if *j == i)),
+        );
+    }
+    out.push_str("  (S<n>_ID, _MODEL, _FW and _BAUD are read-only)\n");
+    out
+}
+
 /// An `f32` as the decimal a person would write (`12.3`, not `12.300000190734863`).
 fn real(value: f32) -> Value {
     let shortest: f64 = value.to_string().parse().unwrap_or(f64::from(value));
@@ -534,6 +570,19 @@ failsafe = -3.5
         let cfg = set(&mut file, "BRG_TLM_HZ", 2.5).unwrap();
         assert_eq!(cfg.telemetry.rate_hz, 2.5);
         assert!(file.text().contains("rate_hz = 2.5"));
+    }
+
+    #[test]
+    fn check_lists_every_parameter_with_its_value() {
+        let text = listing(&cfg());
+        assert!(text.contains("component 140 (33 in all"), "{text}");
+        assert!(text.contains("  bridge: BRG_FS_MS=500 BRG_OUT_HZ=50 "), "{text}");
+        assert!(
+            text.contains("  rudder: S2_CHAN=4 S2_PWM_MIN=920 S2_PWM_TRIM=1520 "),
+            "{text}"
+        );
+        assert!(text.contains("S2_FS_ACT=3 S2_FS_POS=-3.5 "), "{text}");
+        assert!(text.contains("S1_MODEL=? S1_FW=? S1_BAUD=230400"), "{text}");
     }
 
     #[test]
