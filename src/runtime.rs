@@ -11,6 +11,7 @@ use crate::bus::{
 };
 use crate::config::edit::MappingFile;
 use crate::config::{Config, ExitAction};
+use crate::mavlink::param_server::ParamSet;
 use crate::mavlink::reply_quality::{QualityChange, ReplyQuality};
 use crate::mavlink::{
     BridgeCore, BridgeEvent, LinkId, ServoEvent, ServoReport, ServoState, TemperatureReading,
@@ -298,6 +299,44 @@ pub fn mapping_file(path: Option<&std::path::Path>) -> Option<MappingFile> {
     }
 }
 
+type EditResult = (ParamSet, Result<Config, String>);
+
+/// Parameter changes are written into the mapping file on a thread of their own: syncing a
+/// file to an SD card can take tens of milliseconds, which the goals must not wait for. The
+/// changes are made one after the other, in the order they came; without a file the sender is
+/// closed and the caller refuses them.
+fn spawn_mapping_writer(
+    mapping: Option<MappingFile>,
+) -> (
+    mpsc::UnboundedSender<ParamSet>,
+    mpsc::UnboundedReceiver<EditResult>,
+) {
+    let (edit_tx, mut edit_rx) = mpsc::unbounded_channel::<ParamSet>();
+    let (done_tx, done_rx) = mpsc::unbounded_channel::<EditResult>();
+    match mapping {
+        None => edit_rx.close(),
+        Some(mut file) => {
+            let spawned = std::thread::Builder::new()
+                .name("mapping-writer".into())
+                .spawn(move || {
+                    while let Some(set) = edit_rx.blocking_recv() {
+                        let result = file.apply(&set.edits).map_err(|e| {
+                            tracing::warn!("parameter {} = {} refused: {e}", set.name, set.value);
+                            e.reason()
+                        });
+                        if done_tx.send((set, result)).is_err() {
+                            return;
+                        }
+                    }
+                });
+            if let Err(e) = spawned {
+                tracing::warn!("parameters are read-only: cannot start the file writer: {e}");
+            }
+        }
+    }
+    (edit_tx, done_rx)
+}
+
 /// Start the flight record, or say why there is none and carry on without it.
 fn start_record(cfg: &Config, dir: &std::path::Path) -> Option<RecordHandle> {
     let servos = RecordServo::from_config(cfg);
@@ -328,7 +367,7 @@ pub async fn run(
         view,
         record_dir,
         check_latency,
-        mut mapping,
+        mapping,
     } = opts;
     if check_latency {
         // A run on the aircraft (the `run` command): its adapters and its memory.
@@ -395,6 +434,7 @@ pub async fn run(
         }));
     }
 
+    let (edit_tx, mut edited_rx) = spawn_mapping_writer(mapping);
     let mut view_at = Instant::now();
     let mut texts = std::collections::VecDeque::with_capacity(VIEW_TEXTS);
     let mut pending_goals: Vec<Vec<(ServoId, crate::bus::Goal)>> =
@@ -413,6 +453,9 @@ pub async fn run(
             }
             Some((link, header, msg)) = msg_rx.recv() => {
                 core.handle_message(link, &header, &msg, Instant::now());
+            }
+            Some((set, result)) = edited_rx.recv() => {
+                core.param_set_done(&set, result, Instant::now());
             }
             Some((bus, event)) = event_rx.recv() => {
                 tracing::info!(bus = %buses.handles[bus].name(), "{event}");
@@ -437,14 +480,13 @@ pub async fn run(
             }
         }
         while let Some(set) = core.poll_param_set() {
-            let result = match mapping.as_mut() {
-                Some(file) => file.apply(&set.edits).map_err(|e| {
-                    tracing::warn!("parameter {} = {} refused: {e}", set.name, set.value);
-                    e.reason()
-                }),
-                None => Err("no mapping file to change".to_string()),
-            };
-            core.param_set_done(&set, result, Instant::now());
+            if let Err(mpsc::error::SendError(set)) = edit_tx.send(set) {
+                core.param_set_done(
+                    &set,
+                    Err("no mapping file to change".into()),
+                    Instant::now(),
+                );
+            }
         }
         // One message's goals leave in one long packet per bus.
         while let Some((servo, goal)) = core.poll_command() {

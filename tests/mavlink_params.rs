@@ -123,7 +123,11 @@ fn values(messages: &[MavMessage]) -> Vec<(String, f32)> {
         .iter()
         .filter_map(|m| match m {
             MavMessage::PARAM_VALUE(v) => Some((
-                v.param_id.to_str().unwrap_or("").trim_end_matches('\0').to_string(),
+                v.param_id
+                    .to_str()
+                    .unwrap_or("")
+                    .trim_end_matches('\0')
+                    .to_string(),
                 v.param_value,
             )),
             _ => None,
@@ -147,7 +151,10 @@ fn a_new_trim_moves_the_servo_at_once_and_the_next_goal_uses_it() {
     // 1544 µs is +1.00 mm under the servo's own range.
     assert_eq!(
         b.outputs(1544),
-        vec![(0, Goal::Position(MmCenti(100))), (1, Goal::Position(MmCenti(0)))]
+        vec![
+            (0, Goal::Position(MmCenti(100))),
+            (1, Goal::Position(MmCenti(0)))
+        ]
     );
     let (out, goals) = b.set("S1_PWM_TRIM", 1544.0);
     assert_eq!(values(&out), vec![("S1_PWM_TRIM".to_string(), 1544.0)]);
@@ -207,7 +214,10 @@ fn setting_the_failsafe_action_to_a_position_also_sends_the_position() {
     let (out, _) = b.set("S2_FS_ACT", 0.0);
     assert_eq!(
         values(&out),
-        vec![("S2_FS_ACT".to_string(), 0.0), ("S2_FS_POS".to_string(), 0.0)]
+        vec![
+            ("S2_FS_ACT".to_string(), 0.0),
+            ("S2_FS_POS".to_string(), 0.0)
+        ]
     );
 }
 
@@ -225,7 +235,11 @@ fn the_bridge_says_what_it_is_when_asked() {
     };
     b.send(GCS, ask(148.0));
     let (out, _) = b.drain();
-    let [MavMessage::COMMAND_ACK(ack), MavMessage::AUTOPILOT_VERSION(v)] = out.as_slice() else {
+    let [
+        MavMessage::COMMAND_ACK(ack),
+        MavMessage::AUTOPILOT_VERSION(v),
+    ] = out.as_slice()
+    else {
         panic!("{out:?}")
     };
     assert_eq!(ack.result, MavResult::MAV_RESULT_ACCEPTED);
@@ -245,8 +259,10 @@ fn the_bridge_says_what_it_is_when_asked() {
 
     b.send(GCS, ask(396.0));
     let (out, _) = b.drain();
-    let [MavMessage::COMMAND_ACK(_), MavMessage::COMPONENT_INFORMATION_BASIC(info)] =
-        out.as_slice()
+    let [
+        MavMessage::COMMAND_ACK(_),
+        MavMessage::COMPONENT_INFORMATION_BASIC(info),
+    ] = out.as_slice()
     else {
         panic!("{out:?}")
     };

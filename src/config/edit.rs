@@ -52,10 +52,7 @@ pub enum Edit {
         value: Value,
     },
     /// Remove `key` from a table (its default applies).
-    Remove {
-        section: Section,
-        key: &'static str,
-    },
+    Remove { section: Section, key: &'static str },
     /// Set one end of a servo's travel, in whichever form the file uses (`travel_mm = [min,
     /// max]`, or `min_mm` / `max_mm`).
     Travel {
@@ -120,13 +117,15 @@ impl MappingFile {
     pub fn in_memory(text: &str, origin: &str) -> Result<MappingFile, ConfigError> {
         // `Config::parse` gives the located error for anything `toml_edit` would refuse.
         Config::parse(text, origin)?;
-        let doc = text.parse::<DocumentMut>().map_err(|e| ConfigError::Invalid {
-            origin: origin.to_string(),
-            location: None,
-            scope: None,
-            key: None,
-            reason: e.to_string(),
-        })?;
+        let doc = text
+            .parse::<DocumentMut>()
+            .map_err(|e| ConfigError::Invalid {
+                origin: origin.to_string(),
+                location: None,
+                scope: None,
+                key: None,
+                reason: e.to_string(),
+            })?;
         Ok(MappingFile {
             doc,
             origin: origin.to_string(),

@@ -181,7 +181,9 @@ impl ParamServer {
                     .table
                     .iter()
                     .enumerate()
-                    .filter(|(i, p)| *i == set.index || p.value(before, info) != p.value(after, info))
+                    .filter(|(i, p)| {
+                        *i == set.index || p.value(before, info) != p.value(after, info)
+                    })
                     .map(|(index, _)| ParamOut::Value { link: None, index })
                     .collect();
                 out.sort_by_key(|o| match o {
@@ -248,7 +250,10 @@ fn name_of(id: &[u8]) -> &str {
 
 /// A name from the wire, safe to print.
 fn printable(name: &str) -> String {
-    name.chars().filter(|c| c.is_ascii_graphic()).take(16).collect()
+    name.chars()
+        .filter(|c| c.is_ascii_graphic())
+        .take(16)
+        .collect()
 }
 
 /// A value as a person would write it.
@@ -260,22 +265,31 @@ fn number(value: f32) -> String {
     }
 }
 
-/// `text`, cut to what a STATUSTEXT holds, on a character boundary.
+/// `text` in ASCII (a STATUSTEXT is a C string that ground stations do not all read as
+/// UTF-8: `µs` becomes `us`, dashes `-`), cut to the 50 characters it holds.
 fn fit(text: String) -> String {
-    if text.len() <= TEXT_MAX {
-        return text;
+    let mut out = String::with_capacity(text.len());
+    for c in text.chars() {
+        match c {
+            'µ' => out.push('u'),
+            '–' | '—' | '−' => out.push('-'),
+            '…' => out.push_str("..."),
+            '×' => out.push('x'),
+            '°' => {}
+            c if c.is_ascii() => out.push(c),
+            _ => out.push('?'),
+        }
     }
-    let mut end = TEXT_MAX;
-    while !text.is_char_boundary(end) {
-        end -= 1;
-    }
-    text[..end].to_string()
+    out.truncate(TEXT_MAX);
+    out
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use mavlink::dialects::common::{PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA};
+    use mavlink::dialects::common::{
+        PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA,
+    };
 
     const US: (u8, u8) = (1, 140);
 
@@ -329,7 +343,10 @@ mod tests {
         assert_eq!(first.len() + rest.len(), server.table().len());
         assert!(rest.iter().all(|(link, _)| *link == Some(1)));
         let indexes: Vec<usize> = rest.iter().map(|(_, i)| *i).collect();
-        assert_eq!(indexes, (PER_BURST..server.table().len()).collect::<Vec<_>>());
+        assert_eq!(
+            indexes,
+            (PER_BURST..server.table().len()).collect::<Vec<_>>()
+        );
     }
 
     #[test]
@@ -384,7 +401,11 @@ mod tests {
                 index: 3
             }]
         );
-        assert!(server.handle(0, &read("NOPE", -1), US, &cfg, &[]).is_empty());
+        assert!(
+            server
+                .handle(0, &read("NOPE", -1), US, &cfg, &[])
+                .is_empty()
+        );
         assert!(server.handle(0, &read("", 9999), US, &cfg, &[]).is_empty());
         let MavMessage::PARAM_VALUE(v) = server.value_message(trim, &cfg, &[]) else {
             panic!()
@@ -402,13 +423,26 @@ mod tests {
         let mut server = ParamServer::new(&cfg, Instant::now());
         let real = MavParamType::MAV_PARAM_TYPE_REAL32;
         let trim = server.table().index_of("S1_PWM_TRIM").unwrap();
-        assert!(server.handle(0, &set_msg("S1_PWM_TRIM", 1500.0, real), US, &cfg, &[]).is_empty());
+        assert!(
+            server
+                .handle(0, &set_msg("S1_PWM_TRIM", 1500.0, real), US, &cfg, &[])
+                .is_empty()
+        );
         let set = server.poll_set().unwrap();
-        assert_eq!((set.index, set.name.as_str(), set.value), (trim, "S1_PWM_TRIM", 1500.0));
+        assert_eq!(
+            (set.index, set.name.as_str(), set.value),
+            (trim, "S1_PWM_TRIM", 1500.0)
+        );
 
         for (msg, why) in [
-            (set_msg("S1_PWM_TRIM", f32::NAN, real), "S1_PWM_TRIM NaN: not a number"),
-            (set_msg("S1_PWM_TRIM", 1500.5, real), "S1_PWM_TRIM 1500.5: needs a whole number"),
+            (
+                set_msg("S1_PWM_TRIM", f32::NAN, real),
+                "S1_PWM_TRIM NaN: not a number",
+            ),
+            (
+                set_msg("S1_PWM_TRIM", 1500.5, real),
+                "S1_PWM_TRIM 1500.5: needs a whole number",
+            ),
             (
                 set_msg("S1_PWM_TRIM", 1500.0, MavParamType::MAV_PARAM_TYPE_INT32),
                 "S1_PWM_TRIM 1500: type 6 not REAL32",
@@ -418,13 +452,19 @@ mod tests {
             assert_eq!(
                 out,
                 vec![
-                    ParamOut::Value { link: None, index: trim },
+                    ParamOut::Value {
+                        link: None,
+                        index: trim
+                    },
                     ParamOut::Text(MavSeverity::MAV_SEVERITY_WARNING, why.into())
                 ]
             );
         }
         let out = server.handle(0, &set_msg("S1_ID", 9.0, real), US, &cfg, &[]);
-        assert!(matches!(&out[1], ParamOut::Text(_, t) if t == "S1_ID 9: read-only"), "{out:?}");
+        assert!(
+            matches!(&out[1], ParamOut::Text(_, t) if t == "S1_ID 9: read-only"),
+            "{out:?}"
+        );
         let out = server.handle(0, &set_msg("S9_PWM_TRIM", 1.0, real), US, &cfg, &[]);
         assert_eq!(
             out,
@@ -435,7 +475,13 @@ mod tests {
         );
         // The same value again: answered, nothing to change.
         let out = server.handle(0, &set_msg("S1_PWM_TRIM", 1520.0, real), US, &cfg, &[]);
-        assert_eq!(out, vec![ParamOut::Value { link: None, index: trim }]);
+        assert_eq!(
+            out,
+            vec![ParamOut::Value {
+                link: None,
+                index: trim
+            }]
+        );
         // A set broadcast to every component is the autopilot's.
         let mut broadcast = set_msg("S1_PWM_TRIM", 1400.0, real);
         if let MavMessage::PARAM_SET(m) = &mut broadcast {
@@ -450,7 +496,8 @@ mod tests {
         let before = cfg();
         let mut server = ParamServer::new(&before, Instant::now());
         let mut after = before.clone();
-        after.servos[0].failsafe = crate::config::FailsafeAction::Position(crate::protocol::MmCenti(0));
+        after.servos[0].failsafe =
+            crate::config::FailsafeAction::Position(crate::protocol::MmCenti(0));
         let act = server.table().index_of("S1_FS_ACT").unwrap();
         let set = ParamSet {
             index: act,
@@ -460,15 +507,25 @@ mod tests {
         };
         assert_eq!(
             server.set_done(&set, Ok(()), &before, &after, &[]),
-            vec![ParamOut::Value { link: None, index: act }]
+            vec![ParamOut::Value {
+                link: None,
+                index: act
+            }]
         );
-        after.servos[0].failsafe = crate::config::FailsafeAction::Position(crate::protocol::MmCenti(250));
+        after.servos[0].failsafe =
+            crate::config::FailsafeAction::Position(crate::protocol::MmCenti(250));
         let pos = server.table().index_of("S1_FS_POS").unwrap();
         assert_eq!(
             server.set_done(&set, Ok(()), &before, &after, &[]),
             vec![
-                ParamOut::Value { link: None, index: act },
-                ParamOut::Value { link: None, index: pos }
+                ParamOut::Value {
+                    link: None,
+                    index: act
+                },
+                ParamOut::Value {
+                    link: None,
+                    index: pos
+                }
             ]
         );
         let out = server.set_done(
@@ -478,7 +535,9 @@ mod tests {
             &before,
             &[],
         );
-        let ParamOut::Text(_, text) = &out[1] else { panic!() };
+        let ParamOut::Text(_, text) = &out[1] else {
+            panic!()
+        };
         assert_eq!(text.len(), TEXT_MAX);
         assert!(text.starts_with("S1_FS_ACT 3: a reason"));
     }

@@ -341,9 +341,10 @@ impl Param {
                         }]),
                         n => set(section, "actuator", n.into()),
                     },
-                    ServoParam::Id | ServoParam::Model | ServoParam::Firmware | ServoParam::Baud => {
-                        Err(Refusal::ReadOnly)
-                    }
+                    ServoParam::Id
+                    | ServoParam::Model
+                    | ServoParam::Firmware
+                    | ServoParam::Baud => Err(Refusal::ReadOnly),
                 }
             }
         }
@@ -514,7 +515,10 @@ failsafe = -3.5
         assert!(err.contains("2500"), "{err}");
         let cfg = set(&mut file, "S2_FS_POS", 12.345).unwrap();
         // The file keeps 0.01 mm: the parameter reads back what the bridge will use.
-        assert_eq!(cfg.servos[1].failsafe, FailsafeAction::Position(MmCenti(1235)));
+        assert_eq!(
+            cfg.servos[1].failsafe,
+            FailsafeAction::Position(MmCenti(1235))
+        );
         assert!(file.text().contains("failsafe = 12.345"), "{}", file.text());
         let err = set(&mut file, "S1_TRAV_MAX", 30.0).unwrap_err();
         assert!(err.contains("beyond the stroke"), "{err}");
@@ -532,7 +536,10 @@ failsafe = -3.5
         let refuse = |name: &str, value: f32, ty| param(name).edits(&cfg, value, ty).unwrap_err();
         assert_eq!(refuse("S1_ID", 3.0, PARAM_TYPE), Refusal::ReadOnly);
         assert_eq!(refuse("S1_BAUD", 9600.0, PARAM_TYPE), Refusal::ReadOnly);
-        assert_eq!(refuse("S1_PWM_TRIM", f32::NAN, PARAM_TYPE), Refusal::NotANumber);
+        assert_eq!(
+            refuse("S1_PWM_TRIM", f32::NAN, PARAM_TYPE),
+            Refusal::NotANumber
+        );
         assert_eq!(
             refuse("BRG_OUT_HZ", f32::INFINITY, PARAM_TYPE),
             Refusal::NotANumber
@@ -542,13 +549,24 @@ failsafe = -3.5
             refuse("S1_PWM_TRIM", 1500.0, MavParamType::MAV_PARAM_TYPE_INT32),
             Refusal::WrongType(MavParamType::MAV_PARAM_TYPE_INT32)
         );
-        assert_eq!(refuse("S1_REV", 2.0, PARAM_TYPE), Refusal::OutOfRange("0-1"));
-        assert_eq!(refuse("S1_FS_ACT", 4.0, PARAM_TYPE), Refusal::OutOfRange("0-3"));
+        assert_eq!(
+            refuse("S1_REV", 2.0, PARAM_TYPE),
+            Refusal::OutOfRange("0-1")
+        );
+        assert_eq!(
+            refuse("S1_FS_ACT", 4.0, PARAM_TYPE),
+            Refusal::OutOfRange("0-3")
+        );
         assert_eq!(
             refuse("S1_FS_POS", 5.0, PARAM_TYPE),
             Refusal::FailsafePosUnused
         );
-        assert!(param("S1_FS_POS").edits(&cfg, 0.0, PARAM_TYPE).unwrap().is_empty());
+        assert!(
+            param("S1_FS_POS")
+                .edits(&cfg, 0.0, PARAM_TYPE)
+                .unwrap()
+                .is_empty()
+        );
     }
 
     #[test]
@@ -557,7 +575,10 @@ failsafe = -3.5
         let cfg = set(&mut file, "S1_FS_ACT", 3.0).unwrap();
         assert_eq!(cfg.servos[0].failsafe, FailsafeAction::Position(MmCenti(0)));
         let cfg = set(&mut file, "S1_FS_POS", -7.5).unwrap();
-        assert_eq!(cfg.servos[0].failsafe, FailsafeAction::Position(MmCenti(-750)));
+        assert_eq!(
+            cfg.servos[0].failsafe,
+            FailsafeAction::Position(MmCenti(-750))
+        );
         let cfg = set(&mut file, "S1_FS_ACT", 1.0).unwrap();
         assert_eq!(cfg.servos[0].failsafe, FailsafeAction::Off);
         let cfg = set(&mut file, "S2_ACTUATOR", 5.0).unwrap();
@@ -576,7 +597,10 @@ failsafe = -3.5
     fn check_lists_every_parameter_with_its_value() {
         let text = listing(&cfg());
         assert!(text.contains("component 140 (33 in all"), "{text}");
-        assert!(text.contains("  bridge: BRG_FS_MS=500 BRG_OUT_HZ=50 "), "{text}");
+        assert!(
+            text.contains("  bridge: BRG_FS_MS=500 BRG_OUT_HZ=50 "),
+            "{text}"
+        );
         assert!(
             text.contains("  rudder: S2_CHAN=4 S2_PWM_MIN=920 S2_PWM_TRIM=1520 "),
             "{text}"
