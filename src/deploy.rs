@@ -71,6 +71,10 @@ fn systemd_arg(path: &Path) -> String {
 
 /// The systemd unit that runs `binary run --config config` as a service.
 pub fn systemd_unit(binary: &Path, config: &Path) -> String {
+    let config_dir = match config.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => dir,
+        _ => Path::new("."),
+    };
     format!(
         "\
 # {SYSTEMD_UNIT_PATH}, written by `lj9da-bridge deploy systemd`.
@@ -116,6 +120,10 @@ LimitRTPRIO=10
 LimitMEMLOCK=infinity
 NoNewPrivileges=yes
 ProtectSystem=full
+# Parameter changes from the ground station are saved into the mapping file, by writing a new
+# file beside it and renaming it over the old one: the service user needs its folder writable
+# (sudo chown {SERVICE_USER}: {config_dir_plain}); without that a change is refused, and said so.
+ReadWritePaths={config_dir}
 ProtectHome=yes
 PrivateTmp=yes
 
@@ -124,6 +132,9 @@ WantedBy=multi-user.target
 ",
         binary = systemd_arg(binary),
         config = systemd_arg(config),
+        // `-`: a folder that does not exist does not stop the service from starting.
+        config_dir = systemd_arg(Path::new(&format!("-{}", config_dir.display()))),
+        config_dir_plain = config_dir.display(),
     )
 }
 

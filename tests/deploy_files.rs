@@ -48,6 +48,9 @@ fn the_systemd_unit_runs_the_bridge_as_an_unprivileged_service_logging_to_journa
     assert_eq!(get(&e, "Service", "SupplementaryGroups"), ["dialout"]);
     assert_eq!(get(&e, "Service", "StandardError"), ["journal"]);
     assert_eq!(get(&e, "Service", "StateDirectory"), ["lj9da-bridge"]);
+    // Parameter changes are saved into the mapping file, in a folder /etc otherwise protects.
+    assert_eq!(get(&e, "Service", "ProtectSystem"), ["full"]);
+    assert_eq!(get(&e, "Service", "ReadWritePaths"), ["-/etc/lj9da-bridge"]);
     assert!(
         get(&e, "Service", "Environment").contains(&"RUST_LOG=warn,lj9da_bridge=info"),
         "{unit}"
@@ -66,6 +69,14 @@ fn unit_paths_with_spaces_or_percent_signs_are_quoted_and_escaped() {
     assert_eq!(
         get(&e, "Service", "ExecStart"),
         ["\"/opt/lj9da bridge/lj9da-bridge\" run --config /etc/lj9da-bridge/100%%.toml"]
+    );
+    let unit = systemd_unit(
+        Path::new("/usr/bin/lj9da-bridge"),
+        Path::new("/etc/lj9da bridge/plane.toml"),
+    );
+    assert_eq!(
+        get(&ini(&unit), "Service", "ReadWritePaths"),
+        ["\"-/etc/lj9da bridge\""]
     );
 }
 
