@@ -648,4 +648,42 @@ mod tests {
         never_read.telemetry = None;
         assert_eq!(telemetry_of(&report_of(&never_read)), [None; 4]);
     }
+
+    fn trim_set(value: i64) -> ParamSet {
+        ParamSet {
+            index: 0,
+            name: "S1_PWM_TRIM".into(),
+            value: value as f32,
+            edits: vec![crate::config::edit::Edit::Set {
+                section: crate::config::edit::Section::Servo(0),
+                key: "pwm_trim_us",
+                value: value.into(),
+            }],
+        }
+    }
+
+    #[test]
+    fn the_mapping_writer_makes_changes_in_order_and_refuses_without_a_file() {
+        let (tx, _rx) = spawn_mapping_writer(None);
+        assert!(tx.send(trim_set(1500)).is_err(), "no file: refused");
+
+        let file = MappingFile::in_memory(
+            crate::config::SITL_DEFAULT_TOML,
+            crate::config::SITL_DEFAULT_ORIGIN,
+        )
+        .unwrap();
+        let (tx, mut rx) = spawn_mapping_writer(Some(file));
+        for value in [1500, 9999, 1510] {
+            tx.send(trim_set(value)).unwrap();
+        }
+        let results: Vec<_> = (0..3)
+            .map(|_| {
+                let (set, result) = rx.blocking_recv().unwrap();
+                (set.value, result.map(|c| c.servos[0].pwm.trim_us))
+            })
+            .collect();
+        assert_eq!(results[0], (1500.0, Ok(1500)));
+        assert!(results[1].1.is_err(), "{results:?}");
+        assert_eq!(results[2], (1510.0, Ok(1510)));
+    }
 }
