@@ -55,6 +55,38 @@ fn the_end_of_a_reply_is_announced_once_only_its_last_byte_is_queued() {
     assert_eq!(bus.model.transmission_ends_at(), None, "nothing queued");
 }
 
+/// A real-time runtime following `next_wake` hands a reply over in two pieces: the first byte at
+/// its instant, the rest at the last byte's instant; no byte is ever handed before it is complete.
+#[test]
+fn a_runtime_wakes_for_the_first_and_the_last_byte_of_a_reply_only() {
+    let mut bus = VirtualBus::with_ids(&[1]);
+    let byte = byte_time(115_200);
+    let sent_at = bus.now;
+    bus.write(&request(1, 0x09));
+    let first_at = sent_at + byte * 8 + Duration::from_micros(150) + byte;
+    let last_at = first_at + byte * 25;
+    let mut wakes = Vec::new();
+    let mut handed = Vec::new();
+    while let Some(at) = bus.model.next_wake() {
+        assert!(wakes.len() < 10, "{wakes:?}");
+        let ends_reply = bus.model.reply_end_due();
+        bus.model.advance(at);
+        let bytes = bus.model.poll_transmit(at);
+        if !bytes.is_empty() {
+            assert!(bytes.iter().all(|tx| tx.at <= at));
+            wakes.push((at, bytes.len(), ends_reply));
+            handed.extend(bytes);
+        }
+    }
+    assert_eq!(
+        wakes,
+        vec![(first_at, 1, None), (last_at, 25, Some(last_at))],
+        "the first byte at its instant, the other 25 together at the end"
+    );
+    assert_eq!(handed.len(), 26);
+    assert_eq!(bus.model.reply_end_due(), None, "nothing queued");
+}
+
 #[test]
 fn the_return_delay_time_postpones_the_reply() {
     let mut bus = VirtualBus::with_ids(&[1]);

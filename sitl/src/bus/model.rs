@@ -39,6 +39,9 @@ const MAX_PENDING_EVENTS: usize = 100_000;
 const MAX_GARBAGE_RUN: usize = 256;
 /// Processing latencies above this are clamped (a servo that slow would be broken anyway).
 const MAX_PROCESSING_LATENCY: Duration = Duration::from_secs(1);
+/// Bytes that follow each other closer than this belong to one run (one reply on the line).
+const RUN_GAP: Duration = Duration::from_micros(5);
+
 /// Silence after which a servo gives up on a partial packet (inter-byte timeout).
 pub const RX_GAP_RESET: Duration = Duration::from_millis(20);
 
@@ -65,6 +68,8 @@ pub struct BusModel {
     last_decoded_end: Instant,
     host_baud: Option<u32>,
     tx_queue: VecDeque<TxByte>,
+    /// When the last byte handed to the host was complete (see [`BusModel::next_wake`]).
+    last_handed: Option<Instant>,
     next_reply_seq: u64,
     collided_replies: HashSet<u64>,
     echo: bool,
@@ -109,6 +114,7 @@ impl BusModel {
             last_decoded_end: now,
             host_baud: Some(default_baud),
             tx_queue: VecDeque::new(),
+            last_handed: None,
             next_reply_seq: 0,
             collided_replies: HashSet::new(),
             echo: false,
@@ -242,8 +248,77 @@ impl BusModel {
         if self.tx_queue.is_empty() {
             self.collided_replies.clear();
         }
+        if let Some(last) = due.last() {
+            self.last_handed = Some(last.at);
+        }
         self.stats.bytes_tx += due.len() as u64;
         due
+    }
+
+    /// When a real-time runtime must next wake: as [`BusModel::next_deadline`], except that host
+    /// bytes that arrived back to back are processed together at the end of the last, and that
+    /// once the first byte of a run of back-to-back bytes (a reply) has been handed over, the
+    /// rest of the run is due together at its end. The host waits for a reply's last byte; the
+    /// first is handed at its own instant, so the reply still spreads over its wire time, and
+    /// the bytes between cost no wake-up each (at 115 200 bit/s a 26-byte reply would
+    /// otherwise wake the runtime 26 times).
+    pub fn next_wake(&self) -> Option<Instant> {
+        // Host bytes are stamped when read and processed at their own instants, so those read
+        // together are processed together once the last of them is complete.
+        let rx = self.rx_run_end();
+        let tx = self.tx_queue.front().map(|front| {
+            if self.continues_handed_run(front) {
+                self.run_end()
+            } else {
+                front.at
+            }
+        });
+        match (rx, tx) {
+            (Some(rx), Some(tx)) => Some(rx.min(tx)),
+            (rx, tx) => rx.or(tx),
+        }
+    }
+
+    /// When [`BusModel::next_wake`] is the end of a reply (the host is waiting for it, so the
+    /// runtime should not be late with it), that instant.
+    pub fn reply_end_due(&self) -> Option<Instant> {
+        let front = self.tx_queue.front()?;
+        let end = if self.continues_handed_run(front) || self.tx_queue.len() == 1 {
+            self.run_end()
+        } else {
+            return None;
+        };
+        (self.next_wake() == Some(end)).then_some(end)
+    }
+
+    /// The instant the run of back-to-back host bytes at the front of the queue is complete.
+    fn rx_run_end(&self) -> Option<Instant> {
+        let mut end = self.rx_queue.front()?.1.end;
+        for (_, meta) in self.rx_queue.iter().skip(1) {
+            if meta.start.saturating_duration_since(end) > RUN_GAP {
+                break;
+            }
+            end = meta.end;
+        }
+        Some(end)
+    }
+
+    /// `tx` starts where the last byte handed over ended: the same reply, already begun.
+    fn continues_handed_run(&self, tx: &TxByte) -> bool {
+        self.last_handed
+            .is_some_and(|at| tx.start.saturating_duration_since(at) <= RUN_GAP)
+    }
+
+    /// The instant the run of back-to-back bytes at the front of the queue is complete.
+    fn run_end(&self) -> Instant {
+        let mut end = self.tx_queue.front().map_or_else(Instant::now, |tx| tx.at);
+        for tx in self.tx_queue.iter().skip(1) {
+            if tx.start.saturating_duration_since(end) > RUN_GAP {
+                break;
+            }
+            end = tx.at;
+        }
+        end
     }
 
     /// The next instant something is due (a host byte completes, a byte goes to the host).
@@ -276,6 +351,7 @@ impl BusModel {
         self.rx_queue.clear();
         self.decoder.reset();
         self.tx_queue.clear();
+        self.last_handed = None;
         self.collided_replies.clear();
         self.garbage.clear();
         self.garbage_at = None;
