@@ -10,7 +10,6 @@ use crate::bus::{
     spawn_bus_observed,
 };
 use crate::config::{Config, ExitAction};
-use crate::mavlink::reply_quality::{QualityChange, ReplyQuality};
 use crate::mavlink::{
     BridgeCore, BridgeEvent, LinkId, ServoEvent, ServoReport, ServoState, TemperatureReading,
 };
@@ -192,6 +191,7 @@ pub fn report_of(s: &crate::bus::ServoStatus) -> ServoReport {
         temperature_error: s.flags.temperature_error() || s.health == Health::TemperatureError,
         stalled: s.stalled,
         error_count: s.timeouts.min(u64::from(u32::MAX)) as u32,
+        degraded: s.degraded,
     }
 }
 
@@ -235,6 +235,10 @@ fn bridge_event(cfg: &Config, buses: &Buses, bus: usize, event: &BusEvent) -> Op
         BusEvent::Stalled { on, .. } => ServoEvent::Stalled { on: *on },
         BusEvent::WrongModel { found, .. } => ServoEvent::WrongModel { found: *found },
         BusEvent::FlashWriteError { .. } => ServoEvent::FlashWriteError,
+        BusEvent::RepliesDegraded { percent, .. } => {
+            ServoEvent::RepliesDegraded { percent: *percent }
+        }
+        BusEvent::RepliesOk { .. } => ServoEvent::RepliesOk,
         BusEvent::PortLost { .. } => return Some(BridgeEvent::PortLost { bus: bus_name }),
         BusEvent::PortBack => return Some(BridgeEvent::PortBack { bus: bus_name }),
         BusEvent::ServoOnline { .. }
@@ -373,11 +377,6 @@ pub async fn run(
     let mut texts = std::collections::VecDeque::with_capacity(VIEW_TEXTS);
     let mut pending_goals: Vec<Vec<(ServoId, crate::bus::Goal)>> =
         vec![Vec::new(); buses.handles.len()];
-    let mut qualities: Vec<ReplyQuality> = buses
-        .handles
-        .iter()
-        .map(|_| ReplyQuality::default())
-        .collect();
     loop {
         let deadline = tokio::time::Instant::from_std(core.poll_timeout());
         tokio::select! {
@@ -398,16 +397,6 @@ pub async fn run(
                 let now = Instant::now();
                 let (reports, _) = buses.reports(&cfg);
                 core.handle_timeout(now, &reports);
-                for (bus, quality) in buses.handles.iter().zip(&mut qualities) {
-                    let name = bus.name().to_string();
-                    match quality.update(&bus.status(), now) {
-                        Some(QualityChange::Degraded { percent }) => {
-                            core.event(BridgeEvent::RepliesDegraded { bus: name, percent }, now);
-                        }
-                        Some(QualityChange::Recovered) => core.event(BridgeEvent::RepliesOk { bus: name }, now),
-                        None => {}
-                    }
-                }
             }
         }
         // One message's goals leave in one long packet per bus.
@@ -523,6 +512,7 @@ mod tests {
             telemetry_count: 100,
             answered: 100,
             timeouts: 0,
+            degraded: None,
         }
     }
 

@@ -33,6 +33,7 @@
 use super::config::BusConfig;
 use super::event::BusEvent;
 use super::goal::{Goal, ShutdownForce};
+use super::quality::{self, Counts, QualityChange};
 use super::rhythm::GoalRhythm;
 use super::servo::{Phase, SentGoal, Servo, Transaction, ms10_ceil};
 use super::status::{BusCounters, BusStatus, ForceState};
@@ -107,6 +108,8 @@ pub struct BusMaster {
     shutdown: Option<Shutdown>,
     /// Something a status snapshot shows changed since [`BusMaster::take_changed`].
     changed: bool,
+    /// When the servos' reply quality was last judged.
+    judged_at: Instant,
 }
 
 impl BusMaster {
@@ -139,6 +142,7 @@ impl BusMaster {
             resend_all: false,
             shutdown: None,
             changed: true,
+            judged_at: now,
         }
     }
 
@@ -201,6 +205,37 @@ impl BusMaster {
         self.counters.bytes_received += bytes.len() as u64;
         self.decoder.push(bytes);
         self.drain_decoder(now);
+        self.judge_replies(now);
+    }
+
+    /// Once per [`quality::WINDOW`], every servo's share of bad replies (see [`quality`]).
+    fn judge_replies(&mut self, now: Instant) {
+        if now.saturating_duration_since(self.judged_at) < quality::WINDOW {
+            return;
+        }
+        self.judged_at = now;
+        self.changed = true;
+        let mut events = Vec::new();
+        for s in &mut self.servos {
+            if s.phase != Phase::Ready {
+                s.replies.pause();
+                continue;
+            }
+            // A silent run still going on is left to the next window (see `quality`).
+            let counts = Counts {
+                answered: s.answered,
+                missed: s.timeouts.saturating_sub(u64::from(s.consecutive_timeouts)),
+            };
+            let id = s.id();
+            match s.replies.judge(counts) {
+                Some(QualityChange::Degraded { percent }) => {
+                    events.push(BusEvent::RepliesDegraded { id, percent })
+                }
+                Some(QualityChange::Recovered) => events.push(BusEvent::RepliesOk { id }),
+                None => {}
+            }
+        }
+        self.push_events(events);
     }
 
     fn drain_decoder(&mut self, now: Instant) {
@@ -330,6 +365,7 @@ impl BusMaster {
     /// Time has passed: a reply that is overdue has timed out.
     pub fn handle_timeout(&mut self, now: Instant) {
         self.touch(now);
+        self.judge_replies(now);
         let Some(p) = self.pending else {
             return;
         };

@@ -7,6 +7,7 @@
 use super::config::{BusConfig, ServoSetup};
 use super::event::BusEvent;
 use super::goal::Goal;
+use super::quality::ReplyWatch;
 use super::status::{ForceState, Health, ServoIdentity, ServoStatus};
 use crate::protocol::{
     ForceMode, LJ9DA41_MODEL_NUMBER, MemoryMap, MmCenti, Ms10, PositionLimits, ReplyFlags,
@@ -80,6 +81,8 @@ pub(super) struct Servo {
     pub telemetry_count: u64,
     /// Requests answered with a good reply, of every kind.
     pub answered: u64,
+    /// Whether too many of its replies are bad (see [`super::quality`]).
+    pub replies: ReplyWatch,
 
     pub identity: ServoIdentity,
 
@@ -137,6 +140,7 @@ impl Servo {
             timeouts: 0,
             telemetry_count: 0,
             answered: 0,
+            replies: ReplyWatch::default(),
             identity: ServoIdentity::default(),
             telemetry: None,
             telemetry_at: None,
@@ -625,6 +629,8 @@ impl Servo {
                 backoff,
             };
             self.stall_since = None;
+            // Silence is its own event: whatever the replies were before, "lost" says more.
+            self.replies.forget();
             events.push(BusEvent::ServoLost { id: self.id() });
         }
     }
@@ -677,6 +683,7 @@ impl Servo {
             telemetry_count: self.telemetry_count,
             answered: self.answered,
             timeouts: self.timeouts,
+            degraded: self.replies.degraded(),
         }
     }
 }

@@ -30,6 +30,9 @@ pub struct ServoReport {
     pub stalled: bool,
     /// Replies lost or rejected since start.
     pub error_count: u32,
+    /// `Some(percent)` while too many of its replies are bad (it still answers): the share
+    /// of bad replies lately (see [`crate::bus::quality`]).
+    pub degraded: Option<u8>,
 }
 
 impl ServoReport {
@@ -75,6 +78,12 @@ pub enum ServoEvent {
         found: u16,
     },
     FlashWriteError,
+    /// Too many of its replies are bad, `percent` of them, while it keeps answering.
+    RepliesDegraded {
+        percent: u8,
+    },
+    /// A degraded servo's replies are good again.
+    RepliesOk,
 }
 
 /// Something that happened to the bridge as a whole.
@@ -109,14 +118,6 @@ pub enum BridgeEvent {
         bus: String,
     },
     PortBack {
-        bus: String,
-    },
-    /// More than 10 % of the requests to answering servos got a bad or no reply.
-    RepliesDegraded {
-        bus: String,
-        percent: u8,
-    },
-    RepliesOk {
         bus: String,
     },
 }

@@ -43,6 +43,11 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
                 MAV_SEVERITY_ERROR,
                 format!("{servo_name}: flash write error"),
             ),
+            ServoEvent::RepliesDegraded { percent } => (
+                MAV_SEVERITY_WARNING,
+                format!("{servo_name}: degraded, {percent}% replies bad"),
+            ),
+            ServoEvent::RepliesOk => (MAV_SEVERITY_INFO, format!("{servo_name}: replies ok")),
         },
         BridgeEvent::FailsafeEntered { timeout_ms } => (
             MAV_SEVERITY_WARNING,
@@ -65,13 +70,6 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
             MAV_SEVERITY_ERROR,
             format!("LJ9DA: autopilot refuses {source}"),
         ),
-        BridgeEvent::RepliesDegraded { bus, percent } => (
-            MAV_SEVERITY_WARNING,
-            format!("LJ9DA bus {bus}: {percent}% replies bad"),
-        ),
-        BridgeEvent::RepliesOk { bus } => {
-            (MAV_SEVERITY_NOTICE, format!("LJ9DA bus {bus}: replies ok"))
-        }
         BridgeEvent::PortLost { bus } => {
             (MAV_SEVERITY_CRITICAL, format!("LJ9DA bus {bus}: port lost"))
         }
@@ -128,6 +126,7 @@ fn kind(event: &BridgeEvent) -> (Subject, u8) {
                 ServoEvent::Stalled { .. } => 3,
                 ServoEvent::WrongModel { .. } => 4,
                 ServoEvent::FlashWriteError => 5,
+                ServoEvent::RepliesDegraded { .. } | ServoEvent::RepliesOk => 7,
             },
         ),
         BridgeEvent::FailsafeEntered { .. } | BridgeEvent::FailsafeLeft => (Subject::Bridge, 10),
@@ -137,9 +136,6 @@ fn kind(event: &BridgeEvent) -> (Subject, u8) {
         BridgeEvent::SourceRefused { .. } => (Subject::Bridge, 13),
         BridgeEvent::PortLost { bus } | BridgeEvent::PortBack { bus } => {
             (Subject::Bus(bus.clone()), 11)
-        }
-        BridgeEvent::RepliesDegraded { bus, .. } | BridgeEvent::RepliesOk { bus } => {
-            (Subject::Bus(bus.clone()), 12)
         }
     }
 }
@@ -343,6 +339,49 @@ mod tests {
         assert_eq!(text, "rudder: overheat, force off");
     }
 
+    fn replies(servo: usize, event: ServoEvent) -> BridgeEvent {
+        BridgeEvent::Servo { servo, event }
+    }
+
+    #[test]
+    fn a_degraded_servo_is_a_warning_with_its_share_and_its_recovery_an_info() {
+        let (sev, text) = describe(
+            &replies(0, ServoEvent::RepliesDegraded { percent: 23 }),
+            "rudder",
+        );
+        assert_eq!(sev, MavSeverity::MAV_SEVERITY_WARNING);
+        assert_eq!(text, "rudder: degraded, 23% replies bad");
+        let (sev, text) = describe(&replies(0, ServoEvent::RepliesOk), "rudder");
+        assert_eq!(sev, MavSeverity::MAV_SEVERITY_INFO);
+        assert_eq!(text, "rudder: replies ok");
+        // A long name still leaves room for the share and a count of folded repeats.
+        let (_, text) = describe(
+            &replies(0, ServoEvent::RepliesDegraded { percent: 100 }),
+            "aileron_right_outboard",
+        );
+        assert_eq!(text, "aileron_right_outboard: degraded, 100% replies bad");
+        assert!(with_folded(text, 3).len() <= MAX_TEXT);
+    }
+
+    #[test]
+    fn degraded_and_ok_of_one_servo_fold_like_lost_and_back() {
+        let t0 = Instant::now();
+        let s = Duration::from_secs;
+        let mut th = Throttle::new(s(5));
+        let degraded = replies(0, ServoEvent::RepliesDegraded { percent: 20 });
+        let ok = replies(0, ServoEvent::RepliesOk);
+        assert_eq!(th.admit(&degraded, t0), Some(0));
+        assert_eq!(th.admit(&ok, t0 + s(1)), None);
+        assert_eq!(th.admit(&degraded, t0 + s(2)), None);
+        // Another servo is not held back by it.
+        assert_eq!(
+            th.admit(&replies(1, ServoEvent::RepliesDegraded { percent: 30 }), t0),
+            Some(0)
+        );
+        // The latest state equals the one sent: nothing more.
+        assert!(th.due(t0 + s(5)).is_empty());
+    }
+
     #[test]
     fn a_flapping_event_is_sent_once_per_hold_off_and_ends_on_the_latest_state() {
         let t0 = Instant::now();
@@ -408,11 +447,5 @@ mod tests {
         }
         // The same bus again within the hold-off is held back.
         assert_eq!(th.admit(&lost("wing"), t0 + Duration::from_secs(1)), None);
-        let degraded = |bus: &str| BridgeEvent::RepliesDegraded {
-            bus: bus.into(),
-            percent: 20,
-        };
-        assert_eq!(th.admit(&degraded("wing"), t0), Some(0));
-        assert_eq!(th.admit(&degraded("tail"), t0), Some(0));
     }
 }
