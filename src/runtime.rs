@@ -221,13 +221,12 @@ fn bridge_event(cfg: &Config, buses: &Buses, bus: usize, event: &BusEvent) -> Op
             age,
         })
     };
-    let celsius = || reading().map(|r| r.celsius);
     let servo_event = match event {
         BusEvent::ServoLost { .. } => ServoEvent::Lost,
         BusEvent::ServoBack { .. } => ServoEvent::Back,
         BusEvent::TemperatureAlarm { on, .. } => ServoEvent::TemperatureAlarm {
             on: *on,
-            celsius: if *on { celsius() } else { None },
+            reading: if *on { reading() } else { None },
         },
         BusEvent::TemperatureError { .. } => ServoEvent::TemperatureError {
             last_read: reading(),

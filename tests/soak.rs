@@ -214,14 +214,22 @@ fn is_number(s: &str) -> bool {
     !s.is_empty() && s.chars().all(|c| c.is_ascii_digit())
 }
 
-/// "<name>: temperature alarm NNC"
+/// "<name>: temperature alarm; NNC N.Ns ago" (the reading quoted with its age), or
+/// "<name>: temperature alarm" when the bridge has no fresh reading.
 fn temperature_alarm(name: &'static str) -> impl Fn(&str) -> bool {
     move |t| {
         t.strip_prefix(name)
-            .and_then(|t| t.strip_prefix(": temperature alarm "))
-            .and_then(|t| t.strip_suffix('C'))
-            .is_some_and(is_number)
+            .and_then(|t| t.strip_prefix(": temperature alarm"))
+            .is_some_and(|rest| rest.is_empty() || is_reading(rest))
     }
+}
+
+/// "; NNC N.Ns ago"
+fn is_reading(t: &str) -> bool {
+    t.strip_prefix("; ")
+        .and_then(|r| r.strip_suffix("s ago"))
+        .and_then(|r| r.split_once("C "))
+        .is_some_and(|(c, age)| is_number(c) && age.parse::<f64>().is_ok())
 }
 
 /// "<name>: temperature ok NNC", or "<name>: temperature ok" when the bridge has no reading
@@ -250,12 +258,7 @@ fn overheat(name: &'static str) -> impl Fn(&str) -> bool {
         else {
             return false;
         };
-        rest.is_empty()
-            || rest
-                .strip_prefix("; ")
-                .and_then(|r| r.strip_suffix("s ago"))
-                .and_then(|r| r.split_once("C "))
-                .is_some_and(|(c, age)| is_number(c) && age.parse::<f64>().is_ok())
+        rest.is_empty() || is_reading(rest)
     }
 }
 
@@ -1009,7 +1012,7 @@ impl Soak {
             &self.chain,
             start,
             MavSeverity::MAV_SEVERITY_WARNING,
-            "rudder: temperature alarm NNC",
+            "rudder: temperature alarm[; NNC N.Ns ago]",
             S(12),
             temperature_alarm("rudder"),
         )
@@ -1023,6 +1026,24 @@ impl Soak {
             overheat("rudder"),
         )
         .await;
+        // The alarm flag is set at 75 °C (10 °C below the limit): a reading quoted with it
+        // that is below 75 °C predates the flag, and then its age must say so (the bridge
+        // waits up to 0.2 s for the temperature read after the flag).
+        let alarm_text = texts_since(&self.chain.gcs, start)
+            .into_iter()
+            .find(|(_, _, t)| temperature_alarm("rudder")(base_text(t)))
+            .map(|(_, _, t)| t)
+            .unwrap_or_default();
+        let quoted: Option<(i32, f64)> = base_text(&alarm_text)
+            .strip_prefix("rudder: temperature alarm; ")
+            .and_then(|r| r.strip_suffix("s ago"))
+            .and_then(|r| r.split_once("C "))
+            .and_then(|(c, age)| Some((c.parse().ok()?, age.parse().ok()?)));
+        if quoted.is_some_and(|(c, age)| c < 75 && age < 0.2) {
+            self.violation(format!(
+                "{name}: {alarm_text:?} quotes a reading from before the alarm flag as fresh"
+            ));
+        }
         let view = self.chain.view.clone();
         wait_until(&self.chain, "the rudder in temperature error", S(3), || {
             view.borrow().servos[3].health == Health::TemperatureError

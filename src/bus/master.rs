@@ -206,6 +206,18 @@ impl BusMaster {
         self.decoder.push(bytes);
         self.drain_decoder(now);
         self.judge_replies(now);
+        self.release_overdue(now);
+    }
+
+    /// Temperature events that waited [`super::servo::TEMPERATURE_WAIT`] for a temperature
+    /// read in vain.
+    fn release_overdue(&mut self, now: Instant) {
+        let events: Vec<BusEvent> = self
+            .servos
+            .iter_mut()
+            .flat_map(|s| s.overdue_temperature_events(now))
+            .collect();
+        self.push_events(events);
     }
 
     /// Once per [`quality::WINDOW`], every servo's share of bad replies (see [`quality`]).
@@ -330,6 +342,7 @@ impl BusMaster {
                 }
             }
         }
+        let events = s.hold_temperature_events(events, now);
         self.push_events(events);
     }
 
@@ -366,6 +379,7 @@ impl BusMaster {
     pub fn handle_timeout(&mut self, now: Instant) {
         self.touch(now);
         self.judge_replies(now);
+        self.release_overdue(now);
         let Some(p) = self.pending else {
             return;
         };

@@ -1879,7 +1879,7 @@ fn a_temperature_flag_seen_in_a_short_reply_makes_the_next_poll_read_the_tempera
     rig.run(ms(100));
     rig.servo(1).temperature = 77;
     rig.servo(1).flags = 0x20;
-    // Run until a short read shows the alarm flag.
+    // Run until the alarm is out (it waits for the temperature read).
     let from = rig.log.len();
     while !rig.events.contains(&BusEvent::TemperatureAlarm {
         id: id(1),
@@ -1887,16 +1887,14 @@ fn a_temperature_flag_seen_in_a_short_reply_makes_the_next_poll_read_the_tempera
     }) {
         rig.run(ms(1));
     }
-    let next = rig.log.len();
-    rig.run(ms(10));
-    let after: Vec<TxKind> = rig
-        .kinds_since(next)
+    let reads: Vec<TxKind> = rig
+        .kinds_since(from)
         .into_iter()
         .filter(|k| *k != TxKind::Command)
         .collect();
-    let before: Vec<TxKind> = rig.kinds_since(from)[..next - from].to_vec();
-    if before.last() == Some(&TxKind::MotionPoll(id(1))) {
-        assert_eq!(after.first(), Some(&TxKind::Poll(id(1))), "{after:?}");
+    // The first read saw the flag; a short one is followed by a full one at once.
+    if reads.first() == Some(&TxKind::MotionPoll(id(1))) {
+        assert_eq!(reads.get(1), Some(&TxKind::Poll(id(1))), "{reads:?}");
     }
     assert_eq!(
         rig.m
@@ -2126,4 +2124,115 @@ fn a_degraded_servo_unplugged_is_lost_and_comes_back_without_its_old_state() {
         quality_events(&rig.events[from..]),
         vec![BusEvent::ServoBack { id: id(1) }]
     );
+}
+
+/// A rig whose polls between two full ones are position-and-current reads for a second: a
+/// flag that changes is seen first in a reply without the temperature.
+fn rig_with_rare_full_reads() -> Rig {
+    let mut cfg = config(&[1]);
+    cfg.full_telemetry_interval = ms(1000);
+    let mut rig = Rig::online_with_force_on(cfg);
+    rig.run(ms(100));
+    rig
+}
+
+/// The first poll after `from` in the log, and whether it is a short one.
+fn first_read_is_short(rig: &Rig, from: usize) -> bool {
+    rig.kinds_since(from)
+        .into_iter()
+        .find(|k| *k != TxKind::Command)
+        .is_some_and(|k| k != TxKind::Poll(id(1)))
+}
+
+#[test]
+fn a_temperature_event_from_a_short_reply_waits_for_the_temperature_read_after_it() {
+    for alarm in [true, false] {
+        let mut rig = rig_with_rare_full_reads();
+        let read_before = rig.m.status().servo(id(1)).unwrap().telemetry_at.unwrap();
+        // Heating up from 30 °C, unread: the flag arrives in a position-and-current reply.
+        rig.servo(1).temperature = 86;
+        rig.servo(1).flags = if alarm { 0x20 } else { 0x80 };
+        let (from_log, from_events) = (rig.log.len(), rig.events.len());
+        let wanted = |e: &BusEvent| {
+            matches!(
+                e,
+                BusEvent::TemperatureAlarm { on: true, .. } | BusEvent::TemperatureError { .. }
+            )
+        };
+        let mut seen = None;
+        for _ in 0..200 {
+            rig.run(us(100));
+            if rig.events[from_events..].iter().any(wanted) {
+                // What a reader of the status finds when the event comes out.
+                seen = Some(rig.m.status());
+                break;
+            }
+        }
+        let status = seen.expect("the temperature event");
+        assert!(
+            first_read_is_short(&rig, from_log),
+            "{:?}",
+            rig.kinds_since(from_log)
+        );
+        let servo = status.servo(id(1)).unwrap();
+        let t = servo.telemetry.unwrap();
+        assert_eq!(t.present_temperature.0, 86, "alarm {alarm}");
+        let read_at = servo.telemetry_at.unwrap();
+        assert!(read_at > read_before);
+        assert!(
+            rig.t.saturating_duration_since(read_at) < ms(1),
+            "alarm {alarm}: read {:?} before the event",
+            rig.t.saturating_duration_since(read_at)
+        );
+    }
+}
+
+#[test]
+fn a_temperature_event_whose_read_never_comes_goes_out_after_200_ms() {
+    let mut rig = rig_with_rare_full_reads();
+    rig.servo(1).temperature = 86;
+    rig.servo(1).flags = 0x20;
+    let (from, from_log) = (rig.events.len(), rig.log.len());
+    // The flag arrives in a short reply, then the servo falls silent: no full read.
+    let mut flagged_at = None;
+    for _ in 0..200 {
+        rig.run(us(100));
+        if rig
+            .m
+            .status()
+            .servo(id(1))
+            .unwrap()
+            .flags
+            .temperature_alarm()
+        {
+            flagged_at = Some(rig.t);
+            rig.servo(1).present = false;
+            // A reply already on its way is lost too.
+            rig.reply = None;
+            break;
+        }
+    }
+    let flagged_at = flagged_at.expect("the flag seen");
+    assert!(
+        first_read_is_short(&rig, from_log),
+        "{:?}",
+        rig.kinds_since(from_log)
+    );
+    let alarm = BusEvent::TemperatureAlarm {
+        id: id(1),
+        on: true,
+    };
+    rig.run(super::servo::TEMPERATURE_WAIT - ms(5));
+    assert!(!rig.events[from..].contains(&alarm), "out before its wait");
+    rig.run(ms(10));
+    assert!(
+        rig.events[from..].contains(&alarm),
+        "{:?}",
+        &rig.events[from..]
+    );
+    // Out before the servo is lost, with the reading from before the flag.
+    let status = rig.m.status();
+    let servo = status.servo(id(1)).unwrap();
+    assert_eq!(servo.telemetry.unwrap().present_temperature.0, 30);
+    assert!(servo.age.unwrap() > rig.t.saturating_duration_since(flagged_at));
 }

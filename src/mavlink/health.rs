@@ -61,8 +61,11 @@ pub enum ServoEvent {
     Back,
     TemperatureAlarm {
         on: bool,
-        /// The temperature of a reading taken around the event; `None` when there is none.
-        celsius: Option<i16>,
+        /// The latest temperature read and its age, when the alarm goes on; `None` when no
+        /// fresh reading is at hand (and for the all-clear). The bus master holds the event
+        /// until the temperature is read after the flag, so the reading is normally of the
+        /// moment; when that read did not come in time, the age says how old it is.
+        reading: Option<TemperatureReading>,
     },
     /// The servo hit its temperature limit and switched force off; it needs a power cycle.
     TemperatureError {

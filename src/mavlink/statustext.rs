@@ -17,13 +17,19 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
         BridgeEvent::Servo { event, .. } => match event {
             ServoEvent::Lost => (MAV_SEVERITY_CRITICAL, format!("{servo_name}: servo lost")),
             ServoEvent::Back => (MAV_SEVERITY_NOTICE, format!("{servo_name}: servo back")),
-            ServoEvent::TemperatureAlarm { on: true, celsius } => (
+            ServoEvent::TemperatureAlarm {
+                on: true,
+                reading: r,
+            } => (
                 MAV_SEVERITY_WARNING,
-                format!("{servo_name}: temperature alarm{}", degrees(*celsius)),
+                format!("{servo_name}: temperature alarm{}", reading(*r)),
             ),
-            ServoEvent::TemperatureAlarm { on: false, celsius } => (
+            ServoEvent::TemperatureAlarm {
+                on: false,
+                reading: r,
+            } => (
                 MAV_SEVERITY_NOTICE,
-                format!("{servo_name}: temperature ok{}", degrees(*celsius)),
+                format!("{servo_name}: temperature ok{}", reading(*r)),
             ),
             ServoEvent::TemperatureError { last_read } => (
                 MAV_SEVERITY_CRITICAL,
@@ -80,13 +86,9 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
     (severity, truncate(text))
 }
 
-/// " 76C", or nothing when no fresh reading is at hand.
-fn degrees(celsius: Option<i16>) -> String {
-    celsius.map(|c| format!(" {c}C")).unwrap_or_default()
-}
-
 /// "; 80C 0.4s ago": a reading quoted with its age, since it may predate the event it is
-/// quoted with; nothing when no fresh reading is at hand.
+/// quoted with (every temperature text quotes its reading so); nothing when no fresh reading
+/// is at hand.
 fn reading(last_read: Option<TemperatureReading>) -> String {
     last_read
         .map(|r| format!("; {}C {:.1}s ago", r.celsius, r.age.as_secs_f32()))
@@ -252,7 +254,10 @@ mod tests {
             servo: 0,
             event: ServoEvent::TemperatureAlarm {
                 on,
-                celsius: Some(76),
+                reading: Some(TemperatureReading {
+                    celsius: 76,
+                    age: Duration::from_millis(30),
+                }),
             },
         }
     }
@@ -331,6 +336,32 @@ mod tests {
         assert_eq!(text, "rudder: overheat, force off; 80C 0.4s ago");
         let (_, text) = describe(&overheat(Some(reading)), "aileron_right");
         assert_eq!(text, "aileron_right: overheat, force off; 80C 0.4s ago");
+    }
+
+    #[test]
+    fn a_temperature_alarm_quotes_its_reading_with_its_age_too() {
+        let alarm = |on, reading| BridgeEvent::Servo {
+            servo: 0,
+            event: ServoEvent::TemperatureAlarm { on, reading },
+        };
+        let read = |celsius, ms| {
+            Some(TemperatureReading {
+                celsius,
+                age: Duration::from_millis(ms),
+            })
+        };
+        // Read right after the flag (the bus master waits for that read) ...
+        let (sev, text) = describe(&alarm(true, read(86, 10)), "rudder");
+        assert_eq!(sev, MavSeverity::MAV_SEVERITY_WARNING);
+        assert_eq!(text, "rudder: temperature alarm; 86C 0.0s ago");
+        // ... or not, and then the age says the reading is older than the alarm.
+        let (_, text) = describe(&alarm(true, read(80, 430)), "aileron_right");
+        assert_eq!(text, "aileron_right: temperature alarm; 80C 0.4s ago");
+        let (_, text) = describe(&alarm(true, None), "rudder");
+        assert_eq!(text, "rudder: temperature alarm");
+        let (sev, text) = describe(&alarm(false, None), "rudder");
+        assert_eq!(sev, MavSeverity::MAV_SEVERITY_NOTICE);
+        assert_eq!(text, "rudder: temperature ok");
     }
 
     #[test]
@@ -420,7 +451,7 @@ mod tests {
             servo: 1,
             event: ServoEvent::TemperatureAlarm {
                 on: true,
-                celsius: Some(80),
+                reading: None,
             },
         };
         assert!(th.admit(&other, t0).is_some());
