@@ -24,6 +24,11 @@
 //! tick has its goal), and start only if they end before the next tick is expected
 //! ([`GoalRhythm`]): the messages of one tick all reach the wire before the next poll.
 //!
+//! Besides the schedule: every [`quality::WINDOW`] each servo's share of bad replies is judged
+//! (degraded or well, see [`quality`]), and a temperature flag that changes in a reply without
+//! the temperature makes that servo's next read a full one, its event held until that read is
+//! in (at most 200 ms), so that the event and the temperature of the moment come out together.
+//!
 //! A long packet expects no reply; the reply timeout of a request queued behind one counts from
 //! the moment the bytes before it have left the wire (and from the real write, see
 //! [`BusMaster::handle_written`]). A long packet is never queued more than one frame ahead of
