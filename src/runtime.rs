@@ -12,7 +12,6 @@ use crate::bus::{
 use crate::config::edit::MappingFile;
 use crate::config::{Config, ExitAction};
 use crate::mavlink::param_server::ParamSet;
-use crate::mavlink::reply_quality::{QualityChange, ReplyQuality};
 use crate::mavlink::{
     BridgeCore, BridgeEvent, LinkId, ServoEvent, ServoReport, ServoState, TemperatureReading,
 };
@@ -196,6 +195,7 @@ pub fn report_of(s: &crate::bus::ServoStatus) -> ServoReport {
         error_count: s.timeouts.min(u64::from(u32::MAX)) as u32,
         model: s.identity.model,
         firmware: s.identity.firmware,
+        degraded: s.degraded,
     }
 }
 
@@ -225,13 +225,12 @@ fn bridge_event(cfg: &Config, buses: &Buses, bus: usize, event: &BusEvent) -> Op
             age,
         })
     };
-    let celsius = || reading().map(|r| r.celsius);
     let servo_event = match event {
         BusEvent::ServoLost { .. } => ServoEvent::Lost,
         BusEvent::ServoBack { .. } => ServoEvent::Back,
         BusEvent::TemperatureAlarm { on, .. } => ServoEvent::TemperatureAlarm {
             on: *on,
-            celsius: if *on { celsius() } else { None },
+            reading: if *on { reading() } else { None },
         },
         BusEvent::TemperatureError { .. } => ServoEvent::TemperatureError {
             last_read: reading(),
@@ -239,6 +238,10 @@ fn bridge_event(cfg: &Config, buses: &Buses, bus: usize, event: &BusEvent) -> Op
         BusEvent::Stalled { on, .. } => ServoEvent::Stalled { on: *on },
         BusEvent::WrongModel { found, .. } => ServoEvent::WrongModel { found: *found },
         BusEvent::FlashWriteError { .. } => ServoEvent::FlashWriteError,
+        BusEvent::RepliesDegraded { percent, .. } => {
+            ServoEvent::RepliesDegraded { percent: *percent }
+        }
+        BusEvent::RepliesOk { .. } => ServoEvent::RepliesOk,
         BusEvent::PortLost { .. } => return Some(BridgeEvent::PortLost { bus: bus_name }),
         BusEvent::PortBack => return Some(BridgeEvent::PortBack { bus: bus_name }),
         BusEvent::ServoOnline { .. }
@@ -439,11 +442,6 @@ pub async fn run(
     let mut texts = std::collections::VecDeque::with_capacity(VIEW_TEXTS);
     let mut pending_goals: Vec<Vec<(ServoId, crate::bus::Goal)>> =
         vec![Vec::new(); buses.handles.len()];
-    let mut qualities: Vec<ReplyQuality> = buses
-        .handles
-        .iter()
-        .map(|_| ReplyQuality::default())
-        .collect();
     loop {
         let deadline = tokio::time::Instant::from_std(core.poll_timeout());
         tokio::select! {
@@ -467,16 +465,6 @@ pub async fn run(
                 let now = Instant::now();
                 let (reports, _) = buses.reports(&cfg);
                 core.handle_timeout(now, &reports);
-                for (bus, quality) in buses.handles.iter().zip(&mut qualities) {
-                    let name = bus.name().to_string();
-                    match quality.update(&bus.status(), now) {
-                        Some(QualityChange::Degraded { percent }) => {
-                            core.event(BridgeEvent::RepliesDegraded { bus: name, percent }, now);
-                        }
-                        Some(QualityChange::Recovered) => core.event(BridgeEvent::RepliesOk { bus: name }, now),
-                        None => {}
-                    }
-                }
             }
         }
         while let Some(set) = core.poll_param_set() {
@@ -601,6 +589,7 @@ mod tests {
             telemetry_count: 100,
             answered: 100,
             timeouts: 0,
+            degraded: None,
         }
     }
 

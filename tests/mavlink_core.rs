@@ -1183,7 +1183,10 @@ fn events_become_one_statustext_each() {
             servo: 0,
             event: ServoEvent::TemperatureAlarm {
                 on: true,
-                celsius: Some(76),
+                reading: Some(TemperatureReading {
+                    celsius: 76,
+                    age: Duration::from_millis(20),
+                }),
             },
         },
         t0,
@@ -1206,7 +1209,7 @@ fn events_become_one_statustext_each() {
         vec![
             (
                 MavSeverity::MAV_SEVERITY_WARNING,
-                "aileron_left: temperature alarm 76C".to_string()
+                "aileron_left: temperature alarm; 76C 0.0s ago".to_string()
             ),
             (
                 MavSeverity::MAV_SEVERITY_CRITICAL,

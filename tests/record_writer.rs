@@ -391,6 +391,7 @@ fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
             telemetry_count: 1,
             answered: 1,
             timeouts: 0,
+            degraded: None,
         }],
         counters: BusCounters::default(),
         at: t0 + Duration::from_millis(30),

@@ -71,17 +71,34 @@ fn sitl_on_a_terminal_redraws_its_view_in_place_and_quits_on_q() {
             }
         }
     });
-    // A safety net for a run that hangs, not a bound on how long a run takes.
-    let give_up = Instant::now() + Duration::from_secs(300);
+    // Safety nets for a run that hangs or never draws a frame (the plain table, say: it would
+    // run its 120 s), not bounds on how long a run takes: a frame comes every 200 ms.
+    let started = Instant::now();
+    let give_up = started + Duration::from_secs(300);
+    let no_frame_by = started + Duration::from_secs(60);
     let mut out = Vec::new();
     let mut quit_at = None;
-    while let Ok(chunk) = rx.recv_timeout(give_up.saturating_duration_since(Instant::now())) {
-        out.extend_from_slice(&chunk);
+    loop {
+        let wait =
+            Duration::from_millis(500).min(give_up.saturating_duration_since(Instant::now()));
+        match rx.recv_timeout(wait) {
+            Ok(chunk) => out.extend_from_slice(&chunk),
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) if Instant::now() < give_up => {}
+            Err(_) => break,
+        }
         // Once a few frames have been drawn (each ends by hiding the cursor), press `q`.
         let frames = String::from_utf8_lossy(&out).matches(FRAME_END).count();
         if quit_at.is_none() && frames >= 5 {
             keyboard.write_all(b"q").unwrap();
             quit_at = Some(Instant::now());
+        }
+        if quit_at.is_none() && Instant::now() >= no_frame_by {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!(
+                "{frames} live-view frames in 60 s; the terminal got:\n{}",
+                String::from_utf8_lossy(&out)
+            );
         }
     }
     let status = child.wait().unwrap();

@@ -22,7 +22,7 @@ mod common;
 
 use common::{Chain, ChainOptions, Heard};
 use lj9da_bridge::bus::Health;
-use lj9da_bridge::mavlink::reply_quality;
+use lj9da_bridge::bus::quality;
 use lj9da_bridge::runtime::BridgeView;
 use lj9da_sim::fault::XorShift64;
 use lj9da_sim::{BusEvent, Fault, FaultKind, Force, SimHandle};
@@ -100,12 +100,12 @@ const STEPS: usize = 3;
 /// (`STATUSTEXT_HOLD_OFF` in `src/mavlink/core.rs`).
 const STATUSTEXT_HOLD_OFF: Duration = Duration::from_secs(3);
 
-/// The latest a "replies bad" may be heard after the reply faults were cleared: judged over
-/// the window that still held faulty replies (it ends within one [`reply_quality::WINDOW`] of
-/// the clear), held back by the flood guard, plus 0.5 s for the bridge's status tick and the
-/// UDP hop to the ground station. 2 + 3 + 0.5 = 5.5 s.
+/// The latest a "degraded" may be heard after the reply faults were cleared: judged over the
+/// window that still held faulty replies (it ends within one [`quality::WINDOW`] of the
+/// clear), held back by the flood guard, plus 0.5 s for the bus thread and the UDP hop to the
+/// ground station. 2 + 3 + 0.5 = 5.5 s.
 const LAST_BAD_AFTER_CLEAR: Duration = Duration::from_millis(
-    (reply_quality::WINDOW.as_millis() + STATUSTEXT_HOLD_OFF.as_millis() + 500) as u64,
+    (quality::WINDOW.as_millis() + STATUSTEXT_HOLD_OFF.as_millis() + 500) as u64,
 );
 
 /// The growth of the process's resident memory allowed from after warm-up to the end.
@@ -214,14 +214,22 @@ fn is_number(s: &str) -> bool {
     !s.is_empty() && s.chars().all(|c| c.is_ascii_digit())
 }
 
-/// "<name>: temperature alarm NNC"
+/// "<name>: temperature alarm; NNC N.Ns ago" (the reading quoted with its age), or
+/// "<name>: temperature alarm" when the bridge has no fresh reading.
 fn temperature_alarm(name: &'static str) -> impl Fn(&str) -> bool {
     move |t| {
         t.strip_prefix(name)
-            .and_then(|t| t.strip_prefix(": temperature alarm "))
-            .and_then(|t| t.strip_suffix('C'))
-            .is_some_and(is_number)
+            .and_then(|t| t.strip_prefix(": temperature alarm"))
+            .is_some_and(|rest| rest.is_empty() || is_reading(rest))
     }
+}
+
+/// "; NNC N.Ns ago"
+fn is_reading(t: &str) -> bool {
+    t.strip_prefix("; ")
+        .and_then(|r| r.strip_suffix("s ago"))
+        .and_then(|r| r.split_once("C "))
+        .is_some_and(|(c, age)| is_number(c) && age.parse::<f64>().is_ok())
 }
 
 /// "<name>: temperature ok NNC", or "<name>: temperature ok" when the bridge has no reading
@@ -250,20 +258,18 @@ fn overheat(name: &'static str) -> impl Fn(&str) -> bool {
         else {
             return false;
         };
-        rest.is_empty()
-            || rest
-                .strip_prefix("; ")
-                .and_then(|r| r.strip_suffix("s ago"))
-                .and_then(|r| r.split_once("C "))
-                .is_some_and(|(c, age)| is_number(c) && age.parse::<f64>().is_ok())
+        rest.is_empty() || is_reading(rest)
     }
 }
 
-/// "LJ9DA bus wing: N% replies bad"
-fn replies_bad(t: &str) -> bool {
-    t.strip_prefix("LJ9DA bus wing: ")
-        .and_then(|t| t.strip_suffix("% replies bad"))
-        .is_some_and(|n| n.parse::<u8>().is_ok_and(|n| (10..=100).contains(&n)))
+/// "<name>: degraded, N% replies bad", N above 15 (rounded, so 15 too).
+fn degraded(name: &'static str) -> impl Fn(&str) -> bool {
+    move |t| {
+        t.strip_prefix(name)
+            .and_then(|t| t.strip_prefix(": degraded, "))
+            .and_then(|t| t.strip_suffix("% replies bad"))
+            .is_some_and(|n| n.parse::<u8>().is_ok_and(|n| (15..=100).contains(&n)))
+    }
 }
 
 fn exactly(expected: String) -> impl Fn(&str) -> bool {
@@ -463,10 +469,10 @@ struct PhaseLog {
     notes: Vec<String>,
 }
 
-/// When each servo answered, as the bridge's view showed it (Online, Stale or Starting, the
-/// servos the reply-quality watch counts). Reply quality is judged over windows of
-/// [`reply_quality::WINDOW`] and only with servos that answered at both ends of one, so a
-/// faulty servo that goes lost and comes back makes its announcement legitimately later.
+/// When each servo answered, as the bridge's view showed it (Online, Stale or Starting).
+/// Reply quality is judged over windows of [`quality::WINDOW`], only for a servo polled at
+/// both ends of one, so a faulty servo that goes lost and comes back makes its announcement
+/// legitimately later.
 #[derive(Clone, Default)]
 struct AnswerLog(Arc<std::sync::Mutex<Vec<Answering>>>);
 
@@ -680,16 +686,18 @@ impl Soak {
         }
     }
 
-    /// Reply faults (≥ 15 % of the requests bad) are judged over windows of
-    /// [`reply_quality::WINDOW`] (2 s): announced within three of them (6 s; the first may
-    /// hold only part of the fault). A window counts only servos that answered at both of its
-    /// ends: every span in which one of the `faulty` servos (view indices) did not answer
-    /// delays the announcement by its own length and up to two windows (the one it ends and
-    /// the one it starts), and is allowed for. Not a load allowance: the bridge's rule.
+    /// A servo's reply faults (30 % of its requests bad, degraded above 15 %) are judged over
+    /// windows of [`quality::WINDOW`] (2 s): announced within two of them (the first may hold
+    /// only part of the fault, the second holds nothing else), plus 0.5 s for the bus thread
+    /// and the UDP hop. A window counts only for a servo polled at both of its ends: every
+    /// span in which the `faulty` servo (view index) did not answer delays the announcement by
+    /// its own length and up to two windows (the one it ends and the one it starts), and is
+    /// allowed for. Not a load allowance: the bridge's rule.
     fn detected_in_time(&mut self, name: &str, start: Instant, after: Duration, faulty: &[usize]) {
-        let window = reply_quality::WINDOW;
+        let window = quality::WINDOW;
         let silent = self.answers.silent_spans(faulty, start, start + after);
-        let allowed = window * 3
+        let allowed = window * 2
+            + MS(500)
             + silent
                 .iter()
                 .map(|(from, to)| to.saturating_duration_since(*from) + window * 2)
@@ -706,9 +714,9 @@ impl Soak {
                 })
                 .collect();
             self.violation(format!(
-                "{name}: 'replies bad' only {:.2} s after the reply faults began (expected within \
-                 {:.2} s: three windows, plus the faulty servos' silent spans {spans:?} and two \
-                 windows for each)",
+                "{name}: 'degraded' only {:.2} s after the reply faults began (expected within \
+                 {:.2} s: two windows and 0.5 s, plus the faulty servo's silent spans {spans:?} \
+                 and two windows for each)",
                 after.as_secs_f64(),
                 allowed.as_secs_f64()
             ));
@@ -721,44 +729,50 @@ impl Soak {
         self.violations.push(what);
     }
 
-    /// After reply faults injected at `start` and cleared at `cleared`: no "replies ok" while
-    /// they were on (the share of bad replies never fell below 2 % then), and, once any
-    /// judgement made over a window that still held faulty replies has been sent (a window,
-    /// 2 s, plus the flood guard's hold-off, 3 s), the last word is "replies ok".
+    /// After reply faults of servo `servo` injected at `start` and cleared at `cleared`: no
+    /// "replies ok" while they were on (its share of bad replies never fell below 5 % then),
+    /// and, once any judgement made over a window that still held faulty replies has been sent
+    /// (a window, 2 s, plus the flood guard's hold-off, 3 s), the last word is "replies ok", or
+    /// "servo lost" (a lost servo's reply quality goes with it; "servo back" is checked apart).
     async fn replies_recovered(
         &mut self,
         name: &str,
+        servo: &'static str,
         start: Instant,
         cleared: Instant,
     ) -> Duration {
         let gcs = self.chain.gcs.clone();
+        let ok = format!("{servo}: replies ok");
+        let lost = format!("{servo}: servo lost");
+        let is_degraded = degraded(servo);
         let last_word = || {
             texts_since(&gcs, start).into_iter().rfind(|(_, _, t)| {
-                replies_bad(base_text(t)) || base_text(t).ends_with(": replies ok")
+                let t = base_text(t);
+                is_degraded(t) || t == ok || t == lost
             })
         };
         wait_until(
             &self.chain,
-            "'LJ9DA bus wing: replies ok' as the last word",
+            &format!("'{ok}' as the last word"),
             S(15),
             || {
                 cleared.elapsed() >= LAST_BAD_AFTER_CLEAR
                     && last_word().is_some_and(|(_, s, t)| {
-                        s == MavSeverity::MAV_SEVERITY_NOTICE && t == "LJ9DA bus wing: replies ok"
+                        (s == MavSeverity::MAV_SEVERITY_INFO && t == ok) || t == lost
                     })
             },
         )
         .await;
         let texts = texts_since(&self.chain.gcs, start);
         for (at, _, text) in &texts {
-            if base_text(text) == "LJ9DA bus wing: replies ok" && *at < cleared {
+            if base_text(text) == ok && *at < cleared {
                 self.violation(format!(
                     "{name}: {text:?} heard {:.2} s into the phase, while the reply faults were still injected (cleared at {:.2} s)",
                     at.saturating_duration_since(start).as_secs_f64(),
                     cleared.saturating_duration_since(start).as_secs_f64()
                 ));
             }
-            if replies_bad(base_text(text)) && *at > cleared + LAST_BAD_AFTER_CLEAR {
+            if is_degraded(base_text(text)) && *at > cleared + LAST_BAD_AFTER_CLEAR {
                 self.violation(format!(
                     "{name}: {text:?} heard {:.2} s after the reply faults were cleared",
                     at.saturating_duration_since(cleared).as_secs_f64()
@@ -767,7 +781,7 @@ impl Soak {
         }
         texts
             .iter()
-            .find(|(at, _, t)| *at >= cleared && base_text(t) == "LJ9DA bus wing: replies ok")
+            .find(|(at, _, t)| *at >= cleared && base_text(t) == ok)
             .map_or(Duration::ZERO, |(at, _, _)| {
                 at.saturating_duration_since(cleared)
             })
@@ -791,18 +805,23 @@ impl Soak {
         for _ in 0..STEPS {
             self.step(STEP_BOUND_DEGRADED).await;
         }
-        let bad = expect_text(
-            &self.chain,
-            start,
-            MavSeverity::MAV_SEVERITY_WARNING,
-            "LJ9DA bus wing: N% replies bad",
-            // Long enough for detected_in_time to judge a late announcement, not to hide it.
-            S(40),
-            replies_bad,
-        )
-        .await;
-        // Servos 1 and 2 (view indices 0 and 1) are the ones with bad replies.
-        self.detected_in_time(&name, start, bad, &[0, 1]);
+        // Servos 1 and 2 (view indices 0 and 1) are the ones with bad replies: each is
+        // degraded, the other two are not.
+        let mut bad = Vec::new();
+        for (index, servo) in [(0, NAMES[0]), (1, NAMES[1])] {
+            let after = expect_text(
+                &self.chain,
+                start,
+                MavSeverity::MAV_SEVERITY_WARNING,
+                &format!("{servo}: degraded, N% replies bad"),
+                // Long enough for detected_in_time to judge a late announcement, not to hide it.
+                S(40),
+                degraded(servo),
+            )
+            .await;
+            self.detected_in_time(&name, start, after, &[index]);
+            bad.push(after);
+        }
         let hold = S(5).saturating_sub(start.elapsed());
         tokio::time::sleep(hold).await;
         let stats = self.sim.stats();
@@ -812,7 +831,10 @@ impl Soak {
         let recovery = self
             .all_online("every servo online after the reply faults")
             .await;
-        let ok = self.replies_recovered(&name, start, cleared).await;
+        let mut ok = Vec::new();
+        for servo in [NAMES[0], NAMES[1]] {
+            ok.push(self.replies_recovered(&name, servo, start, cleared).await);
+        }
         self.steps(STEP_BOUND).await;
         let flapping = |t: &str| {
             [NAMES[0], NAMES[1]]
@@ -823,9 +845,9 @@ impl Soak {
             name,
             start,
             Some(recovery),
-            &[&replies_bad, &flapping],
+            &[&degraded(NAMES[0]), &degraded(NAMES[1]), &flapping],
             vec![
-                format!("'replies bad' after {bad:?}, 'replies ok' {ok:?} after clearing"),
+                format!("'degraded' after {bad:?}, 'replies ok' {ok:?} after clearing"),
                 format!(
                     "sim: {} replies corrupted, {} dropped so far",
                     stats.replies_corrupted, stats.replies_dropped
@@ -990,7 +1012,7 @@ impl Soak {
             &self.chain,
             start,
             MavSeverity::MAV_SEVERITY_WARNING,
-            "rudder: temperature alarm NNC",
+            "rudder: temperature alarm[; NNC N.Ns ago]",
             S(12),
             temperature_alarm("rudder"),
         )
@@ -1004,6 +1026,24 @@ impl Soak {
             overheat("rudder"),
         )
         .await;
+        // The alarm flag is set at 75 °C (10 °C below the limit): a reading quoted with it
+        // that is below 75 °C predates the flag, and then its age must say so (the bridge
+        // waits up to 0.2 s for the temperature read after the flag).
+        let alarm_text = texts_since(&self.chain.gcs, start)
+            .into_iter()
+            .find(|(_, _, t)| temperature_alarm("rudder")(base_text(t)))
+            .map(|(_, _, t)| t)
+            .unwrap_or_default();
+        let quoted: Option<(i32, f64)> = base_text(&alarm_text)
+            .strip_prefix("rudder: temperature alarm; ")
+            .and_then(|r| r.strip_suffix("s ago"))
+            .and_then(|r| r.split_once("C "))
+            .and_then(|(c, age)| Some((c.parse().ok()?, age.parse().ok()?)));
+        if quoted.is_some_and(|(c, age)| c < 75 && age < 0.2) {
+            self.violation(format!(
+                "{name}: {alarm_text:?} quotes a reading from before the alarm flag as fresh"
+            ));
+        }
         let view = self.chain.view.clone();
         wait_until(&self.chain, "the rudder in temperature error", S(3), || {
             view.borrow().servos[3].health == Health::TemperatureError
@@ -1349,18 +1389,18 @@ impl Soak {
             S(5),
         )
         .await;
+        // Servo 1 (view index 0) is the one with bad replies; the unplugged elevator is lost,
+        // not degraded.
         let bad = expect_text(
             &self.chain,
             start,
             MavSeverity::MAV_SEVERITY_WARNING,
-            "LJ9DA bus wing: N% replies bad",
+            "aileron_left: degraded, N% replies bad",
             // Long enough for detected_in_time to judge a late announcement, not to hide it.
             S(40),
-            replies_bad,
+            degraded(NAMES[0]),
         )
         .await;
-        // Servo 1 (view index 0) is the one with bad replies; the unplugged elevator is left
-        // out of every window by the rule and has its own event.
         self.detected_in_time(&name, start, bad, &[0]);
         tokio::time::sleep(S(5).saturating_sub(start.elapsed())).await;
         self.sim.clear_all();
@@ -1376,16 +1416,18 @@ impl Soak {
             S(6),
         )
         .await;
-        let ok = self.replies_recovered(&name, start, cleared).await;
+        let ok = self
+            .replies_recovered(&name, NAMES[0], start, cleared)
+            .await;
         self.steps(STEP_BOUND).await;
         let expected = |t: &str| t == "elevator: servo lost" || t == "aileron_left: servo lost";
         self.finish(
             name,
             start,
             Some(recovery),
-            &[&expected, &replies_bad],
+            &[&expected, &degraded(NAMES[0])],
             vec![format!(
-                "'servo lost' after {lost:?}, 'replies bad' after {bad:?}; after clearing: 'servo back' {back:?}, 'replies ok' {ok:?}"
+                "'servo lost' after {lost:?}, 'degraded' after {bad:?}; after clearing: 'servo back' {back:?}, 'replies ok' {ok:?}"
             )],
         );
     }

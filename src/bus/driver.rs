@@ -715,6 +715,7 @@ impl Driver {
                 BusEvent::ServoOnline { .. }
                 | BusEvent::ServoBack { .. }
                 | BusEvent::PortBack
+                | BusEvent::RepliesOk { .. }
                 | BusEvent::TemperatureAlarm { on: false, .. }
                 | BusEvent::Stalled { on: false, .. } => tracing::info!(bus = %bus, "{event}"),
                 _ => tracing::warn!(bus = %bus, "{event}"),

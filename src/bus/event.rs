@@ -31,6 +31,11 @@ pub enum BusEvent {
     Stalled { id: ServoId, on: bool },
     /// The servo reports a failed flash write.
     FlashWriteError { id: ServoId },
+    /// More than [`super::quality::DEGRADED_ABOVE`] of the servo's requests in a window got a
+    /// garbled reply or none, while it kept answering: `percent` of them.
+    RepliesDegraded { id: ServoId, percent: u8 },
+    /// A degraded servo's share of bad replies fell below [`super::quality::OK_BELOW`].
+    RepliesOk { id: ServoId },
     /// The serial port failed or disappeared; the driver is reopening it.
     PortLost { reason: String },
     /// The serial port is open again.
@@ -50,7 +55,9 @@ impl BusEvent {
             | BusEvent::TemperatureError { id }
             | BusEvent::ForceRefused { id }
             | BusEvent::Stalled { id, .. }
-            | BusEvent::FlashWriteError { id } => Some(*id),
+            | BusEvent::FlashWriteError { id }
+            | BusEvent::RepliesDegraded { id, .. }
+            | BusEvent::RepliesOk { id } => Some(*id),
             BusEvent::PortLost { .. } | BusEvent::PortBack => None,
         }
     }
@@ -86,6 +93,10 @@ impl fmt::Display for BusEvent {
             BusEvent::Stalled { id, on: true } => write!(f, "servo {id} stalled"),
             BusEvent::Stalled { id, on: false } => write!(f, "servo {id} moving again"),
             BusEvent::FlashWriteError { id } => write!(f, "servo {id} flash write error"),
+            BusEvent::RepliesDegraded { id, percent } => {
+                write!(f, "servo {id} degraded: {percent}% of its replies bad")
+            }
+            BusEvent::RepliesOk { id } => write!(f, "servo {id} replies ok"),
             BusEvent::PortLost { reason } => write!(f, "serial port lost: {reason}"),
             BusEvent::PortBack => f.write_str("serial port back"),
         }

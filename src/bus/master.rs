@@ -24,6 +24,11 @@
 //! tick has its goal), and start only if they end before the next tick is expected
 //! ([`GoalRhythm`]): the messages of one tick all reach the wire before the next poll.
 //!
+//! Besides the schedule: every [`quality::WINDOW`] each servo's share of bad replies is judged
+//! (degraded or well, see [`quality`]), and a temperature flag that changes in a reply without
+//! the temperature makes that servo's next read a full one, its event held until that read is
+//! in (at most 200 ms), so that the event and the temperature of the moment come out together.
+//!
 //! A long packet expects no reply; the reply timeout of a request queued behind one counts from
 //! the moment the bytes before it have left the wire (and from the real write, see
 //! [`BusMaster::handle_written`]). A long packet is never queued more than one frame ahead of
@@ -33,6 +38,7 @@
 use super::config::BusConfig;
 use super::event::BusEvent;
 use super::goal::{Goal, ShutdownForce};
+use super::quality::{self, Counts, QualityChange};
 use super::rhythm::GoalRhythm;
 use super::servo::{Phase, SentGoal, Servo, Transaction, ms10_ceil};
 use super::status::{BusCounters, BusStatus, ForceState};
@@ -107,6 +113,8 @@ pub struct BusMaster {
     shutdown: Option<Shutdown>,
     /// Something a status snapshot shows changed since [`BusMaster::take_changed`].
     changed: bool,
+    /// When the servos' reply quality was last judged.
+    judged_at: Instant,
 }
 
 impl BusMaster {
@@ -139,6 +147,7 @@ impl BusMaster {
             resend_all: false,
             shutdown: None,
             changed: true,
+            judged_at: now,
         }
     }
 
@@ -201,6 +210,49 @@ impl BusMaster {
         self.counters.bytes_received += bytes.len() as u64;
         self.decoder.push(bytes);
         self.drain_decoder(now);
+        self.judge_replies(now);
+        self.release_overdue(now);
+    }
+
+    /// Temperature events that waited [`super::servo::TEMPERATURE_WAIT`] for a temperature
+    /// read in vain.
+    fn release_overdue(&mut self, now: Instant) {
+        let events: Vec<BusEvent> = self
+            .servos
+            .iter_mut()
+            .flat_map(|s| s.overdue_temperature_events(now))
+            .collect();
+        self.push_events(events);
+    }
+
+    /// Once per [`quality::WINDOW`], every servo's share of bad replies (see [`quality`]).
+    fn judge_replies(&mut self, now: Instant) {
+        if now.saturating_duration_since(self.judged_at) < quality::WINDOW {
+            return;
+        }
+        self.judged_at = now;
+        self.changed = true;
+        let mut events = Vec::new();
+        for s in &mut self.servos {
+            if s.phase != Phase::Ready {
+                s.replies.pause();
+                continue;
+            }
+            // A silent run still going on is left to the next window (see `quality`).
+            let counts = Counts {
+                answered: s.answered,
+                missed: s.timeouts.saturating_sub(u64::from(s.consecutive_timeouts)),
+            };
+            let id = s.id();
+            match s.replies.judge(counts) {
+                Some(QualityChange::Degraded { percent }) => {
+                    events.push(BusEvent::RepliesDegraded { id, percent })
+                }
+                Some(QualityChange::Recovered) => events.push(BusEvent::RepliesOk { id }),
+                None => {}
+            }
+        }
+        self.push_events(events);
     }
 
     fn drain_decoder(&mut self, now: Instant) {
@@ -295,6 +347,7 @@ impl BusMaster {
                 }
             }
         }
+        let events = s.hold_temperature_events(events, now);
         self.push_events(events);
     }
 
@@ -330,6 +383,8 @@ impl BusMaster {
     /// Time has passed: a reply that is overdue has timed out.
     pub fn handle_timeout(&mut self, now: Instant) {
         self.touch(now);
+        self.judge_replies(now);
+        self.release_overdue(now);
         let Some(p) = self.pending else {
             return;
         };

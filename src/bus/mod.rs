@@ -11,6 +11,8 @@
 //!   per reply) and reopening it when it disappears. Several buses run side by side, one
 //!   thread each. It never decides what to send; it carries bytes and time.
 //!
+//! [`quality`] judges each servo's share of bad replies (degraded, or well).
+//!
 //! Plain data: [`config`] (what the bus is), [`goal`] (what is asked of a servo), [`status`]
 //! (what is known of it), [`event`] (what happened), [`transmit`] (what to write next).
 //!
@@ -29,10 +31,11 @@
 //!   registers 30–41 (force state, goal, goal time), then one telemetry poll. Force is
 //!   switched ON when the first position goal arrives (the servo then takes its present
 //!   position as goal, so nothing jumps).
-//! - **Health.** Starting, online, stale, offline (after `offline_after_timeouts` timeouts in
-//!   a row, then probed with back-off), wrong model, temperature error (no force-ON is tried
+//! - **Health.** Starting, online, stale, offline (after `offline_after_timeouts` silent
+//!   timeouts in a row, then probed with back-off), wrong model, temperature error (no force-ON is tried
 //!   while the servo reports it). A servo that answers again, or whose force is found OFF by
-//!   the periodic read-back of registers 30–41, is re-initialised.
+//!   the periodic read-back of registers 30–41, is re-initialised. Apart from its health, a
+//!   servo that answers is degraded while too many of its replies are bad (see [`quality`]).
 //! - **Stall.** A servo whose position stays further than the tolerance from its goal while
 //!   drawing at least the configured current, for the configured time, is reported stalled.
 //!
@@ -76,6 +79,7 @@ pub mod driver;
 pub mod event;
 pub mod goal;
 pub mod master;
+pub mod quality;
 pub mod rhythm;
 mod servo;
 pub mod status;

@@ -7,6 +7,7 @@
 use super::config::{BusConfig, ServoSetup};
 use super::event::BusEvent;
 use super::goal::Goal;
+use super::quality::ReplyWatch;
 use super::status::{ForceState, Health, ServoIdentity, ServoStatus};
 use crate::protocol::{
     ForceMode, LJ9DA41_MODEL_NUMBER, MemoryMap, MmCenti, Ms10, PositionLimits, ReplyFlags,
@@ -16,6 +17,10 @@ use std::time::{Duration, Instant};
 
 /// Bytes of a position-and-current read (registers 42–49).
 pub(super) const MOTION_LEN: u8 = 8;
+
+/// How long a temperature event from a reply without a temperature waits for the full read
+/// that follows it (see [`Servo::hold_temperature_events`]).
+pub(super) const TEMPERATURE_WAIT: Duration = Duration::from_millis(200);
 
 /// Where a servo is in its life on the bus.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -80,6 +85,8 @@ pub(super) struct Servo {
     pub telemetry_count: u64,
     /// Requests answered with a good reply, of every kind.
     pub answered: u64,
+    /// Whether too many of its replies are bad (see [`super::quality`]).
+    pub replies: ReplyWatch,
 
     pub identity: ServoIdentity,
 
@@ -93,6 +100,9 @@ pub(super) struct Servo {
     /// The temperature flags changed in a reply that carried no temperature: read it at the
     /// servo's next poll.
     pub full_wanted: bool,
+    /// Temperature events of such a reply, held until that read (at most
+    /// [`TEMPERATURE_WAIT`]), and since when.
+    pub held: Option<(Instant, Vec<BusEvent>)>,
     pub flags: ReplyFlags,
     pub last_poll_at: Option<Instant>,
     pub last_verify_at: Option<Instant>,
@@ -137,12 +147,14 @@ impl Servo {
             timeouts: 0,
             telemetry_count: 0,
             answered: 0,
+            replies: ReplyWatch::default(),
             identity: ServoIdentity::default(),
             telemetry: None,
             telemetry_at: None,
             position_at: None,
             motion_at: None,
             full_wanted: false,
+            held: None,
             flags: ReplyFlags::default(),
             last_poll_at: None,
             last_verify_at: None,
@@ -326,6 +338,48 @@ impl Servo {
         }
         if new.flash_write_error() && !old.flash_write_error() {
             events.push(BusEvent::FlashWriteError { id });
+        }
+    }
+
+    /// The events of one reply as they may go out now: a temperature event from a reply that
+    /// carried no temperature is held back until the full read that the flag change asked for
+    /// (`full_wanted`), so that whoever reads the servo's status for the event finds the
+    /// temperature of the moment, not one read before the flag. Once that read is in, the
+    /// held events go out first, in order.
+    pub fn hold_temperature_events(
+        &mut self,
+        events: Vec<BusEvent>,
+        now: Instant,
+    ) -> Vec<BusEvent> {
+        if !self.full_wanted {
+            let mut out = self.held.take().map(|(_, e)| e).unwrap_or_default();
+            out.extend(events);
+            return out;
+        }
+        let (temperature, other): (Vec<_>, Vec<_>) = events.into_iter().partition(|e| {
+            matches!(
+                e,
+                BusEvent::TemperatureAlarm { .. } | BusEvent::TemperatureError { .. }
+            )
+        });
+        if !temperature.is_empty() {
+            self.held
+                .get_or_insert((now, Vec::new()))
+                .1
+                .extend(temperature);
+        }
+        other
+    }
+
+    /// Held temperature events whose wait is over without a full read (the servo stopped
+    /// answering, or the bus had no time for the read): they go out with the reading there
+    /// is, whose age then tells it is older than the event.
+    pub fn overdue_temperature_events(&mut self, now: Instant) -> Vec<BusEvent> {
+        match self.held {
+            Some((since, _)) if now.saturating_duration_since(since) >= TEMPERATURE_WAIT => {
+                self.held.take().map(|(_, e)| e).unwrap_or_default()
+            }
+            _ => Vec::new(),
         }
     }
 
@@ -625,6 +679,8 @@ impl Servo {
                 backoff,
             };
             self.stall_since = None;
+            // Silence is its own event: whatever the replies were before, "lost" says more.
+            self.replies.forget();
             events.push(BusEvent::ServoLost { id: self.id() });
         }
     }
@@ -677,6 +733,7 @@ impl Servo {
             telemetry_count: self.telemetry_count,
             answered: self.answered,
             timeouts: self.timeouts,
+            degraded: self.replies.degraded(),
         }
     }
 }

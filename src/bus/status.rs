@@ -93,8 +93,11 @@ pub struct ServoStatus {
     /// Requests answered with a good reply, of every kind: with `timeouts`, the share of
     /// requests that went unanswered or garbled.
     pub answered: u64,
-    /// Replies missed in all.
+    /// Replies missed in all (garbled or never came).
     pub timeouts: u64,
+    /// `Some(percent)` while too many of its replies are bad: the share of bad replies in the
+    /// latest window judged (see [`super::quality`]).
+    pub degraded: Option<u8>,
 }
 
 /// What the bus master counted since it started.

@@ -1879,7 +1879,7 @@ fn a_temperature_flag_seen_in_a_short_reply_makes_the_next_poll_read_the_tempera
     rig.run(ms(100));
     rig.servo(1).temperature = 77;
     rig.servo(1).flags = 0x20;
-    // Run until a short read shows the alarm flag.
+    // Run until the alarm is out (it waits for the temperature read).
     let from = rig.log.len();
     while !rig.events.contains(&BusEvent::TemperatureAlarm {
         id: id(1),
@@ -1887,16 +1887,14 @@ fn a_temperature_flag_seen_in_a_short_reply_makes_the_next_poll_read_the_tempera
     }) {
         rig.run(ms(1));
     }
-    let next = rig.log.len();
-    rig.run(ms(10));
-    let after: Vec<TxKind> = rig
-        .kinds_since(next)
+    let reads: Vec<TxKind> = rig
+        .kinds_since(from)
         .into_iter()
         .filter(|k| *k != TxKind::Command)
         .collect();
-    let before: Vec<TxKind> = rig.kinds_since(from)[..next - from].to_vec();
-    if before.last() == Some(&TxKind::MotionPoll(id(1))) {
-        assert_eq!(after.first(), Some(&TxKind::Poll(id(1))), "{after:?}");
+    // The first read saw the flag; a short one is followed by a full one at once.
+    if reads.first() == Some(&TxKind::MotionPoll(id(1))) {
+        assert_eq!(reads.get(1), Some(&TxKind::Poll(id(1))), "{reads:?}");
     }
     assert_eq!(
         rig.m
@@ -1964,4 +1962,277 @@ fn garbled_replies_at_10_20_30_and_60_percent_never_make_a_servo_lost_and_silenc
         "{:?}",
         &rig.events[from..]
     );
+}
+
+/// The reply-quality events of servo 1 (and any other servo's, which there must be none of).
+fn quality_events(events: &[BusEvent]) -> Vec<BusEvent> {
+    events
+        .iter()
+        .filter(|e| {
+            matches!(
+                e,
+                BusEvent::RepliesDegraded { .. }
+                    | BusEvent::RepliesOk { .. }
+                    | BusEvent::ServoLost { .. }
+                    | BusEvent::ServoBack { .. }
+            )
+        })
+        .cloned()
+        .collect()
+}
+
+/// Goals to every servo of a four-servo rig every 20 ms, for `d`.
+fn run_with_goals(rig: &mut Rig, d: Duration) {
+    let steps = d.as_millis() / 20;
+    for k in 0..steps {
+        for n in 1..=4u8 {
+            rig.set_goal(
+                n,
+                Goal::Position(MmCenti((k % 500) as i16 * 4 + i16::from(n))),
+            );
+        }
+        rig.run(ms(20));
+    }
+}
+
+#[test]
+fn garbled_replies_at_10_percent_leave_a_servo_online_and_at_20_30_60_percent_degrade_it_once() {
+    for (share, degrades) in [(0.1, false), (0.2, true), (0.3, true), (0.6, true)] {
+        let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+        rig.servo(1).garble_share = share;
+        let from = rig.events.len();
+        // Ten windows of garbled replies.
+        run_with_goals(&mut rig, super::quality::WINDOW * 10);
+        let events = quality_events(&rig.events[from..]);
+        let status = rig.m.status();
+        let degraded = status.servo(id(1)).unwrap().degraded;
+        if !degrades {
+            assert_eq!(events, vec![], "{share}");
+            assert_eq!(degraded, None, "{share}");
+        } else {
+            // One "degraded", with the share in it; never "ok" while it lasts, never "lost".
+            let [BusEvent::RepliesDegraded { id: servo, percent }] = events[..] else {
+                panic!("{share}: {events:?}");
+            };
+            assert_eq!(servo, id(1), "{share}");
+            let expected = (share * 100.0) as i32;
+            assert!(
+                (i32::from(percent) - expected).abs() <= 3,
+                "{share}: {percent}%"
+            );
+            assert!(
+                degraded.is_some_and(|p| (i32::from(p) - expected).abs() <= 3),
+                "{share}: {degraded:?}"
+            );
+        }
+        assert_eq!(rig.health(1), Health::Online, "{share}");
+        for n in 2..=4 {
+            assert_eq!(
+                status.servo(id(n)).unwrap().degraded,
+                None,
+                "{share}: servo {n}"
+            );
+        }
+        // The line is clean again: one "replies ok" (if it was degraded) within two windows.
+        rig.servo(1).garble_share = 0.0;
+        let from = rig.events.len();
+        run_with_goals(&mut rig, super::quality::WINDOW * 2);
+        let expected = if degrades {
+            vec![BusEvent::RepliesOk { id: id(1) }]
+        } else {
+            vec![]
+        };
+        assert_eq!(quality_events(&rig.events[from..]), expected, "{share}");
+        assert_eq!(rig.m.status().servo(id(1)).unwrap().degraded, None);
+    }
+}
+
+#[test]
+fn a_share_of_bad_replies_wandering_between_8_and_30_percent_gives_one_degraded() {
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    let from = rig.events.len();
+    // The share changes every 3 s, out of step with the windows, on both sides of 15 %.
+    for share in [0.3, 0.12, 0.2, 0.08, 0.25, 0.12]
+        .into_iter()
+        .cycle()
+        .take(20)
+    {
+        rig.servo(1).garble_share = share;
+        run_with_goals(&mut rig, ms(3000));
+    }
+    let events = quality_events(&rig.events[from..]);
+    assert!(
+        matches!(events[..], [BusEvent::RepliesDegraded { .. }]),
+        "{events:?}"
+    );
+    assert!(rig.m.status().servo(id(1)).unwrap().degraded.is_some());
+}
+
+#[test]
+fn an_unplugged_servo_is_lost_not_degraded_and_back_when_plugged_in() {
+    // A loose connector: 8 % of the replies garbled (not degraded), then none at all.
+    // Unplugged at every 100 ms of a window: the silence before "lost" (300 ms, 15 % of a
+    // window) falls at a window's end in some of these runs, and never counts as bad replies.
+    for offset in (0..super::quality::WINDOW.as_millis() as u64).step_by(100) {
+        let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+        rig.servo(1).garble_share = 0.08;
+        run_with_goals(&mut rig, super::quality::WINDOW * 2 + ms(offset));
+        let from = rig.events.len();
+        rig.servo(1).present = false;
+        run_with_goals(&mut rig, super::quality::WINDOW * 3);
+        assert_eq!(
+            quality_events(&rig.events[from..]),
+            vec![BusEvent::ServoLost { id: id(1) }],
+            "unplugged {offset} ms into a window"
+        );
+        assert_eq!(rig.health(1), Health::Offline);
+        assert_eq!(rig.m.status().servo(id(1)).unwrap().degraded, None);
+        let from = rig.events.len();
+        rig.servo(1).present = true;
+        rig.servo(1).garble_share = 0.0;
+        run_with_goals(&mut rig, super::quality::WINDOW * 3);
+        assert_eq!(
+            quality_events(&rig.events[from..]),
+            vec![BusEvent::ServoBack { id: id(1) }],
+            "plugged in {offset} ms into a window"
+        );
+        assert_eq!(rig.health(1), Health::Online);
+        assert_eq!(rig.m.status().servo(id(1)).unwrap().degraded, None);
+    }
+}
+
+#[test]
+fn a_degraded_servo_unplugged_is_lost_and_comes_back_without_its_old_state() {
+    let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    rig.servo(1).garble_share = 0.3;
+    run_with_goals(&mut rig, super::quality::WINDOW * 3);
+    assert!(rig.m.status().servo(id(1)).unwrap().degraded.is_some());
+    let from = rig.events.len();
+    rig.servo(1).present = false;
+    run_with_goals(&mut rig, super::quality::WINDOW * 2);
+    // "Lost" says more than a share of bad replies: the state goes without a word.
+    assert_eq!(
+        quality_events(&rig.events[from..]),
+        vec![BusEvent::ServoLost { id: id(1) }]
+    );
+    assert_eq!(rig.m.status().servo(id(1)).unwrap().degraded, None);
+    rig.servo(1).garble_share = 0.0;
+    rig.servo(1).present = true;
+    let from = rig.events.len();
+    run_with_goals(&mut rig, super::quality::WINDOW * 3);
+    assert_eq!(
+        quality_events(&rig.events[from..]),
+        vec![BusEvent::ServoBack { id: id(1) }]
+    );
+}
+
+/// A rig whose polls between two full ones are position-and-current reads for a second: a
+/// flag that changes is seen first in a reply without the temperature.
+fn rig_with_rare_full_reads() -> Rig {
+    let mut cfg = config(&[1]);
+    cfg.full_telemetry_interval = ms(1000);
+    let mut rig = Rig::online_with_force_on(cfg);
+    rig.run(ms(100));
+    rig
+}
+
+/// The first poll after `from` in the log, and whether it is a short one.
+fn first_read_is_short(rig: &Rig, from: usize) -> bool {
+    rig.kinds_since(from)
+        .into_iter()
+        .find(|k| *k != TxKind::Command)
+        .is_some_and(|k| k != TxKind::Poll(id(1)))
+}
+
+#[test]
+fn a_temperature_event_from_a_short_reply_waits_for_the_temperature_read_after_it() {
+    for alarm in [true, false] {
+        let mut rig = rig_with_rare_full_reads();
+        let read_before = rig.m.status().servo(id(1)).unwrap().telemetry_at.unwrap();
+        // Heating up from 30 °C, unread: the flag arrives in a position-and-current reply.
+        rig.servo(1).temperature = 86;
+        rig.servo(1).flags = if alarm { 0x20 } else { 0x80 };
+        let (from_log, from_events) = (rig.log.len(), rig.events.len());
+        let wanted = |e: &BusEvent| {
+            matches!(
+                e,
+                BusEvent::TemperatureAlarm { on: true, .. } | BusEvent::TemperatureError { .. }
+            )
+        };
+        let mut seen = None;
+        for _ in 0..200 {
+            rig.run(us(100));
+            if rig.events[from_events..].iter().any(wanted) {
+                // What a reader of the status finds when the event comes out.
+                seen = Some(rig.m.status());
+                break;
+            }
+        }
+        let status = seen.expect("the temperature event");
+        assert!(
+            first_read_is_short(&rig, from_log),
+            "{:?}",
+            rig.kinds_since(from_log)
+        );
+        let servo = status.servo(id(1)).unwrap();
+        let t = servo.telemetry.unwrap();
+        assert_eq!(t.present_temperature.0, 86, "alarm {alarm}");
+        let read_at = servo.telemetry_at.unwrap();
+        assert!(read_at > read_before);
+        assert!(
+            rig.t.saturating_duration_since(read_at) < ms(1),
+            "alarm {alarm}: read {:?} before the event",
+            rig.t.saturating_duration_since(read_at)
+        );
+    }
+}
+
+#[test]
+fn a_temperature_event_whose_read_never_comes_goes_out_after_200_ms() {
+    let mut rig = rig_with_rare_full_reads();
+    rig.servo(1).temperature = 86;
+    rig.servo(1).flags = 0x20;
+    let (from, from_log) = (rig.events.len(), rig.log.len());
+    // The flag arrives in a short reply, then the servo falls silent: no full read.
+    let mut flagged_at = None;
+    for _ in 0..200 {
+        rig.run(us(100));
+        if rig
+            .m
+            .status()
+            .servo(id(1))
+            .unwrap()
+            .flags
+            .temperature_alarm()
+        {
+            flagged_at = Some(rig.t);
+            rig.servo(1).present = false;
+            // A reply already on its way is lost too.
+            rig.reply = None;
+            break;
+        }
+    }
+    let flagged_at = flagged_at.expect("the flag seen");
+    assert!(
+        first_read_is_short(&rig, from_log),
+        "{:?}",
+        rig.kinds_since(from_log)
+    );
+    let alarm = BusEvent::TemperatureAlarm {
+        id: id(1),
+        on: true,
+    };
+    rig.run(super::servo::TEMPERATURE_WAIT - ms(5));
+    assert!(!rig.events[from..].contains(&alarm), "out before its wait");
+    rig.run(ms(10));
+    assert!(
+        rig.events[from..].contains(&alarm),
+        "{:?}",
+        &rig.events[from..]
+    );
+    // Out before the servo is lost, with the reading from before the flag.
+    let status = rig.m.status();
+    let servo = status.servo(id(1)).unwrap();
+    assert_eq!(servo.telemetry.unwrap().present_temperature.0, 30);
+    assert!(servo.age.unwrap() > rig.t.saturating_duration_since(flagged_at));
 }

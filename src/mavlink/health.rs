@@ -34,6 +34,9 @@ pub struct ServoReport {
     pub model: Option<u16>,
     /// The servo's firmware version (register 2), once read.
     pub firmware: Option<u8>,
+    /// `Some(percent)` while too many of its replies are bad (it still answers): the share
+    /// of bad replies lately (see [`crate::bus::quality`]).
+    pub degraded: Option<u8>,
 }
 
 impl ServoReport {
@@ -62,8 +65,11 @@ pub enum ServoEvent {
     Back,
     TemperatureAlarm {
         on: bool,
-        /// The temperature of a reading taken around the event; `None` when there is none.
-        celsius: Option<i16>,
+        /// The latest temperature read and its age, when the alarm goes on; `None` when no
+        /// fresh reading is at hand (and for the all-clear). The bus master holds the event
+        /// until the temperature is read after the flag, so the reading is normally of the
+        /// moment; when that read did not come in time, the age says how old it is.
+        reading: Option<TemperatureReading>,
     },
     /// The servo hit its temperature limit and switched force off; it needs a power cycle.
     TemperatureError {
@@ -79,6 +85,12 @@ pub enum ServoEvent {
         found: u16,
     },
     FlashWriteError,
+    /// Too many of its replies are bad, `percent` of them, while it keeps answering.
+    RepliesDegraded {
+        percent: u8,
+    },
+    /// A degraded servo's replies are good again.
+    RepliesOk,
 }
 
 /// Something that happened to the bridge as a whole.
@@ -113,14 +125,6 @@ pub enum BridgeEvent {
         bus: String,
     },
     PortBack {
-        bus: String,
-    },
-    /// More than 10 % of the requests to answering servos got a bad or no reply.
-    RepliesDegraded {
-        bus: String,
-        percent: u8,
-    },
-    RepliesOk {
         bus: String,
     },
 }

@@ -10,7 +10,6 @@
 //! - [`telemetry`]: HEARTBEAT, NAMED_VALUE_FLOAT, ESC_INFO/ESC_STATUS and STATUSTEXT builders.
 //! - [`statustext`]: event texts, severities and the flood guard.
 //! - [`health`]: the servo reports and events the telemetry is made from.
-//! - [`reply_quality`]: a bus whose replies go bad while its servos stay online.
 
 pub mod commands;
 pub mod core;
@@ -18,7 +17,6 @@ pub mod health;
 pub mod outputs;
 pub mod param_server;
 pub mod params;
-pub mod reply_quality;
 pub mod schedule;
 pub mod statustext;
 pub mod telemetry;

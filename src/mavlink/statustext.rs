@@ -17,13 +17,19 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
         BridgeEvent::Servo { event, .. } => match event {
             ServoEvent::Lost => (MAV_SEVERITY_CRITICAL, format!("{servo_name}: servo lost")),
             ServoEvent::Back => (MAV_SEVERITY_NOTICE, format!("{servo_name}: servo back")),
-            ServoEvent::TemperatureAlarm { on: true, celsius } => (
+            ServoEvent::TemperatureAlarm {
+                on: true,
+                reading: r,
+            } => (
                 MAV_SEVERITY_WARNING,
-                format!("{servo_name}: temperature alarm{}", degrees(*celsius)),
+                format!("{servo_name}: temperature alarm{}", reading(*r)),
             ),
-            ServoEvent::TemperatureAlarm { on: false, celsius } => (
+            ServoEvent::TemperatureAlarm {
+                on: false,
+                reading: r,
+            } => (
                 MAV_SEVERITY_NOTICE,
-                format!("{servo_name}: temperature ok{}", degrees(*celsius)),
+                format!("{servo_name}: temperature ok{}", reading(*r)),
             ),
             ServoEvent::TemperatureError { last_read } => (
                 MAV_SEVERITY_CRITICAL,
@@ -43,6 +49,11 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
                 MAV_SEVERITY_ERROR,
                 format!("{servo_name}: flash write error"),
             ),
+            ServoEvent::RepliesDegraded { percent } => (
+                MAV_SEVERITY_WARNING,
+                format!("{servo_name}: degraded, {percent}% replies bad"),
+            ),
+            ServoEvent::RepliesOk => (MAV_SEVERITY_INFO, format!("{servo_name}: replies ok")),
         },
         BridgeEvent::FailsafeEntered { timeout_ms } => (
             MAV_SEVERITY_WARNING,
@@ -65,13 +76,6 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
             MAV_SEVERITY_ERROR,
             format!("LJ9DA: autopilot refuses {source}"),
         ),
-        BridgeEvent::RepliesDegraded { bus, percent } => (
-            MAV_SEVERITY_WARNING,
-            format!("LJ9DA bus {bus}: {percent}% replies bad"),
-        ),
-        BridgeEvent::RepliesOk { bus } => {
-            (MAV_SEVERITY_NOTICE, format!("LJ9DA bus {bus}: replies ok"))
-        }
         BridgeEvent::PortLost { bus } => {
             (MAV_SEVERITY_CRITICAL, format!("LJ9DA bus {bus}: port lost"))
         }
@@ -82,13 +86,9 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
     (severity, truncate(text))
 }
 
-/// " 76C", or nothing when no fresh reading is at hand.
-fn degrees(celsius: Option<i16>) -> String {
-    celsius.map(|c| format!(" {c}C")).unwrap_or_default()
-}
-
 /// "; 80C 0.4s ago": a reading quoted with its age, since it may predate the event it is
-/// quoted with; nothing when no fresh reading is at hand.
+/// quoted with (every temperature text quotes its reading so); nothing when no fresh reading
+/// is at hand.
 fn reading(last_read: Option<TemperatureReading>) -> String {
     last_read
         .map(|r| format!("; {}C {:.1}s ago", r.celsius, r.age.as_secs_f32()))
@@ -128,6 +128,7 @@ fn kind(event: &BridgeEvent) -> (Subject, u8) {
                 ServoEvent::Stalled { .. } => 3,
                 ServoEvent::WrongModel { .. } => 4,
                 ServoEvent::FlashWriteError => 5,
+                ServoEvent::RepliesDegraded { .. } | ServoEvent::RepliesOk => 7,
             },
         ),
         BridgeEvent::FailsafeEntered { .. } | BridgeEvent::FailsafeLeft => (Subject::Bridge, 10),
@@ -137,9 +138,6 @@ fn kind(event: &BridgeEvent) -> (Subject, u8) {
         BridgeEvent::SourceRefused { .. } => (Subject::Bridge, 13),
         BridgeEvent::PortLost { bus } | BridgeEvent::PortBack { bus } => {
             (Subject::Bus(bus.clone()), 11)
-        }
-        BridgeEvent::RepliesDegraded { bus, .. } | BridgeEvent::RepliesOk { bus } => {
-            (Subject::Bus(bus.clone()), 12)
         }
     }
 }
@@ -256,7 +254,10 @@ mod tests {
             servo: 0,
             event: ServoEvent::TemperatureAlarm {
                 on,
-                celsius: Some(76),
+                reading: Some(TemperatureReading {
+                    celsius: 76,
+                    age: Duration::from_millis(30),
+                }),
             },
         }
     }
@@ -338,9 +339,78 @@ mod tests {
     }
 
     #[test]
+    fn a_temperature_alarm_quotes_its_reading_with_its_age_too() {
+        let alarm = |on, reading| BridgeEvent::Servo {
+            servo: 0,
+            event: ServoEvent::TemperatureAlarm { on, reading },
+        };
+        let read = |celsius, ms| {
+            Some(TemperatureReading {
+                celsius,
+                age: Duration::from_millis(ms),
+            })
+        };
+        // Read right after the flag (the bus master waits for that read) ...
+        let (sev, text) = describe(&alarm(true, read(86, 10)), "rudder");
+        assert_eq!(sev, MavSeverity::MAV_SEVERITY_WARNING);
+        assert_eq!(text, "rudder: temperature alarm; 86C 0.0s ago");
+        // ... or not, and then the age says the reading is older than the alarm.
+        let (_, text) = describe(&alarm(true, read(80, 430)), "aileron_right");
+        assert_eq!(text, "aileron_right: temperature alarm; 80C 0.4s ago");
+        let (_, text) = describe(&alarm(true, None), "rudder");
+        assert_eq!(text, "rudder: temperature alarm");
+        let (sev, text) = describe(&alarm(false, None), "rudder");
+        assert_eq!(sev, MavSeverity::MAV_SEVERITY_NOTICE);
+        assert_eq!(text, "rudder: temperature ok");
+    }
+
+    #[test]
     fn an_overheat_without_a_fresh_reading_quotes_no_temperature() {
         let (_, text) = describe(&overheat(None), "rudder");
         assert_eq!(text, "rudder: overheat, force off");
+    }
+
+    fn replies(servo: usize, event: ServoEvent) -> BridgeEvent {
+        BridgeEvent::Servo { servo, event }
+    }
+
+    #[test]
+    fn a_degraded_servo_is_a_warning_with_its_share_and_its_recovery_an_info() {
+        let (sev, text) = describe(
+            &replies(0, ServoEvent::RepliesDegraded { percent: 23 }),
+            "rudder",
+        );
+        assert_eq!(sev, MavSeverity::MAV_SEVERITY_WARNING);
+        assert_eq!(text, "rudder: degraded, 23% replies bad");
+        let (sev, text) = describe(&replies(0, ServoEvent::RepliesOk), "rudder");
+        assert_eq!(sev, MavSeverity::MAV_SEVERITY_INFO);
+        assert_eq!(text, "rudder: replies ok");
+        // A long name still leaves room for the share and a count of folded repeats.
+        let (_, text) = describe(
+            &replies(0, ServoEvent::RepliesDegraded { percent: 100 }),
+            "aileron_right_outboard",
+        );
+        assert_eq!(text, "aileron_right_outboard: degraded, 100% replies bad");
+        assert!(with_folded(text, 3).len() <= MAX_TEXT);
+    }
+
+    #[test]
+    fn degraded_and_ok_of_one_servo_fold_like_lost_and_back() {
+        let t0 = Instant::now();
+        let s = Duration::from_secs;
+        let mut th = Throttle::new(s(5));
+        let degraded = replies(0, ServoEvent::RepliesDegraded { percent: 20 });
+        let ok = replies(0, ServoEvent::RepliesOk);
+        assert_eq!(th.admit(&degraded, t0), Some(0));
+        assert_eq!(th.admit(&ok, t0 + s(1)), None);
+        assert_eq!(th.admit(&degraded, t0 + s(2)), None);
+        // Another servo is not held back by it.
+        assert_eq!(
+            th.admit(&replies(1, ServoEvent::RepliesDegraded { percent: 30 }), t0),
+            Some(0)
+        );
+        // The latest state equals the one sent: nothing more.
+        assert!(th.due(t0 + s(5)).is_empty());
     }
 
     #[test]
@@ -381,7 +451,7 @@ mod tests {
             servo: 1,
             event: ServoEvent::TemperatureAlarm {
                 on: true,
-                celsius: Some(80),
+                reading: None,
             },
         };
         assert!(th.admit(&other, t0).is_some());
@@ -408,11 +478,5 @@ mod tests {
         }
         // The same bus again within the hold-off is held back.
         assert_eq!(th.admit(&lost("wing"), t0 + Duration::from_secs(1)), None);
-        let degraded = |bus: &str| BridgeEvent::RepliesDegraded {
-            bus: bus.into(),
-            percent: 20,
-        };
-        assert_eq!(th.admit(&degraded("wing"), t0), Some(0));
-        assert_eq!(th.admit(&degraded("tail"), t0), Some(0));
     }
 }

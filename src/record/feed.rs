@@ -110,9 +110,11 @@ impl StatusFeed {
             | BusEvent::PortBack
             | BusEvent::TemperatureAlarm { on: false, .. }
             | BusEvent::Stalled { on: false, .. } => severity::NOTICE,
+            BusEvent::RepliesOk { .. } => severity::INFO,
             BusEvent::ServoRestarted { .. }
             | BusEvent::ForceRefused { .. }
-            | BusEvent::TemperatureAlarm { on: true, .. } => severity::WARNING,
+            | BusEvent::TemperatureAlarm { on: true, .. }
+            | BusEvent::RepliesDegraded { .. } => severity::WARNING,
             BusEvent::WrongModel { .. }
             | BusEvent::Stalled { on: true, .. }
             | BusEvent::FlashWriteError { .. } => severity::ERROR,

@@ -52,7 +52,7 @@ pub struct ServoRow {
     pub current_a: Option<f32>,
     pub temperature_c: Option<f32>,
     pub voltage_v: Option<f32>,
-    /// Health, then `TEMP-ERROR`, `temp-alarm` or `STALLED` when they hold.
+    /// Health (or `Degraded N%`), then `TEMP-ERROR`, `temp-alarm` or `STALLED` when they hold.
     pub state: String,
     /// |position error| in mm, oldest first (a missing reading is not a sample).
     pub error_history: VecDeque<f32>,
@@ -151,9 +151,10 @@ impl LiveModel {
         let (utilisation_percent, bad_replies_percent) = match self.previous.get(index) {
             Some((at, p)) if bus.at > *at => {
                 let elapsed_ns = bus.at.duration_since(*at).as_nanos() as u64;
-                let asked = (c.polls + c.position_polls + c.other_requests)
-                    .saturating_sub(p.polls + p.position_polls + p.other_requests);
-                let bad = (c.timeouts + c.bad_sums).saturating_sub(p.timeouts + p.bad_sums);
+                let asked = (c.polls + c.motion_polls + c.position_polls + c.other_requests)
+                    .saturating_sub(p.polls + p.motion_polls + p.position_polls + p.other_requests);
+                // A garbled reply is a timeout too (and a bad sum): counted once.
+                let bad = c.timeouts.saturating_sub(p.timeouts);
                 (
                     percent(c.wire_busy_ns.saturating_sub(p.wire_busy_ns), elapsed_ns),
                     percent(bad, asked),
@@ -509,6 +510,39 @@ mod tests {
     }
 
     #[test]
+    fn a_degraded_servo_shows_its_share_of_bad_replies_as_its_state() {
+        let mut s = servo(Some(0.0), Some(0.0), Some(0.07));
+        s.report.degraded = Some(23);
+        let mut m = LiveModel::default();
+        m.update(
+            &BridgeView {
+                servos: vec![s.clone()],
+                ..Default::default()
+            },
+            vec![],
+        );
+        assert_eq!(m.servos[0].state, "Degraded 23%");
+        assert!(
+            crate::simulation::table::render(&BridgeView {
+                servos: vec![s.clone()],
+                ..Default::default()
+            })
+            .lines()
+            .any(|l| l.starts_with("rudder") && l.ends_with("  Degraded 23%"))
+        );
+        // Lost is lost, whatever its replies were before.
+        s.health = Health::Offline;
+        m.update(
+            &BridgeView {
+                servos: vec![s],
+                ..Default::default()
+            },
+            vec![],
+        );
+        assert_eq!(m.servos[0].state, "Offline");
+    }
+
+    #[test]
     fn bus_rates_come_from_the_counters_between_two_views() {
         let t0 = Instant::now();
         let mut m = LiveModel::default();
@@ -522,9 +556,11 @@ mod tests {
             "no rate from one view"
         );
         let counters = BusCounters {
-            polls: 80,
+            polls: 60,
+            motion_polls: 20,
             position_polls: 10,
             other_requests: 10,
+            // 5 of the 15 missed replies came garbled: bad sums, not more bad replies.
             timeouts: 15,
             bad_sums: 5,
             wire_busy_ns: 150_000_000,
@@ -539,7 +575,7 @@ mod tests {
         m.update(&second, vec!["a log line".into()]);
         let b = &m.buses[0];
         assert_eq!(b.utilisation_percent, Some(75.0));
-        assert_eq!(b.bad_replies_percent, Some(20.0));
+        assert_eq!(b.bad_replies_percent, Some(15.0));
         assert_eq!(b.late_wakeups, 3);
         assert_eq!(m.texts, vec!["rudder: servo lost".to_string()]);
         assert_eq!(m.log, vec!["a log line".to_string()]);

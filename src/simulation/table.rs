@@ -80,11 +80,16 @@ pub async fn show(mut view: watch::Receiver<BridgeView>, plain: bool) {
     }
 }
 
-/// A servo's state as the tables show it: its health, then a temperature error or alarm and a
-/// stall.
+/// A servo's state as the tables show it: its health (`Degraded 23%` for a servo that answers
+/// with too many bad replies, 23 % lately), then a temperature error or alarm and a stall.
 pub fn state_text(s: &crate::runtime::ServoView) -> String {
     let r = &s.report;
-    let mut state = format!("{:?}", s.health);
+    let mut state = match (s.health, r.degraded) {
+        (crate::bus::Health::Online | crate::bus::Health::Stale, Some(percent)) => {
+            format!("Degraded {percent}%")
+        }
+        (health, _) => format!("{health:?}"),
+    };
     if r.temperature_error {
         state.push_str(" TEMP-ERROR");
     } else if r.temperature_alarm {
