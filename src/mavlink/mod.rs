@@ -9,6 +9,8 @@
 //! - [`statustext`]: event texts, severities and the flood guard.
 //! - [`health`]: the servo reports and events the telemetry is made from.
 //! - [`reply_quality`]: a bus whose replies go bad while its servos stay online.
+//! - [`signing`]: MAVLink 2 signing: incoming messages checked and counted, outgoing ones
+//!   signed, timestamps that survive a restart.
 
 pub mod commands;
 pub mod core;
@@ -16,6 +18,7 @@ pub mod health;
 pub mod outputs;
 pub mod reply_quality;
 pub mod schedule;
+pub mod signing;
 pub mod statustext;
 pub mod telemetry;
 
