@@ -11,6 +11,7 @@ use crate::bus::{
 };
 use crate::config::{Config, ExitAction};
 use crate::mavlink::reply_quality::{QualityChange, ReplyQuality};
+use crate::mavlink::signing::{self, DropCounts, Incoming, Signing, TimestampFile};
 use crate::mavlink::{
     BridgeCore, BridgeEvent, LinkId, ServoEvent, ServoReport, ServoState, TemperatureReading,
 };
@@ -20,7 +21,7 @@ use ::mavlink::dialects::common::MavMessage;
 use ::mavlink::{AsyncMavConnection, MavHeader};
 use std::collections::HashMap;
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 use thiserror::Error;
 use tokio::sync::{mpsc, watch};
@@ -29,6 +30,9 @@ use tokio::sync::{mpsc, watch};
 const VIEW_PERIOD: std::time::Duration = std::time::Duration::from_millis(50);
 
 type Link = Arc<::mavlink::AsyncConnection<MavMessage>>;
+
+/// MAVLink 2 signing shared by the links' reader tasks and the send loop.
+type SharedSigning = Arc<Mutex<Signing>>;
 
 /// Why the bridge could not start.
 #[derive(Debug, Error)]
@@ -39,6 +43,8 @@ pub enum RunError {
         #[source]
         source: std::io::Error,
     },
+    #[error(transparent)]
+    Signing(#[from] signing::TimestampFileError),
 }
 
 /// One servo as the live table shows it.
@@ -64,6 +70,9 @@ pub struct BridgeView {
     pub buses: Vec<BusStatus>,
     /// The latest STATUSTEXTs sent, oldest first (at most [`VIEW_TEXTS`]).
     pub texts: Vec<String>,
+    /// With signing on: per link (the autopilot's, then the ground station's) the incoming
+    /// messages dropped as unsigned, badly signed or replayed. Empty with signing off.
+    pub signing_drops: Vec<DropCounts>,
 }
 
 /// How many of the latest STATUSTEXTs the view keeps.
@@ -260,6 +269,80 @@ async fn connect(address: &str) -> Result<Link, RunError> {
     Ok(Arc::new(conn))
 }
 
+/// Signing for `links` links as the mapping asks (`None`: off). The timestamp file of a mapping
+/// given without a file goes in the flight record's folder, or the temporary folder.
+fn open_signing(
+    cfg: &Config,
+    links: usize,
+    record_dir: Option<&std::path::Path>,
+) -> Result<Option<SharedSigning>, RunError> {
+    let Some(setup) = &cfg.mavlink.signing else {
+        return Ok(None);
+    };
+    let path = setup.timestamp_file.clone().unwrap_or_else(|| {
+        record_dir
+            .map(std::path::Path::to_path_buf)
+            .unwrap_or_else(std::env::temp_dir)
+            .join("lj9da-bridge.signing-timestamp")
+    });
+    let signing = Signing::open(
+        setup.key.clone(),
+        links,
+        Some(TimestampFile::new(&path)),
+        signing::now(),
+    )?;
+    tracing::info!(timestamp_file = %path.display(), "MAVLink 2 signing on: every message signed, unsigned ones dropped");
+    Ok(Some(Arc::new(Mutex::new(signing))))
+}
+
+/// The next message for [`BridgeCore`] from `link`: every message without signing; with it,
+/// only correctly signed fresh ones (the others are counted and, now and then, logged).
+async fn receive(
+    link: &Link,
+    link_id: LinkId,
+    signing: Option<&SharedSigning>,
+) -> Result<Option<(MavHeader, MavMessage)>, ::mavlink::error::MessageReadError> {
+    let Some(signing) = signing else {
+        return link.recv().await.map(Some);
+    };
+    let raw = link.recv_raw().await?;
+    let incoming = lock(signing).receive(link_id, &raw, signing::now(), Instant::now());
+    Ok(match incoming {
+        Incoming::Message(header, message) => Some((header, message)),
+        Incoming::Unknown => None,
+        Incoming::Dropped { warning, .. } => {
+            if let Some(w) = warning {
+                tracing::warn!("{w}");
+            }
+            None
+        }
+    })
+}
+
+/// Send `message` on `link`, signed when signing is on.
+async fn send(
+    link: &Link,
+    link_id: LinkId,
+    signing: Option<&SharedSigning>,
+    header: &MavHeader,
+    message: &MavMessage,
+) -> Result<usize, ::mavlink::error::MessageWriteError> {
+    let Some(signing) = signing else {
+        return link.send(header, message).await;
+    };
+    let (frame, error) = lock(signing).sign(link_id, *header, message, signing::now());
+    if let Some(e) = error {
+        tracing::warn!("{e}");
+    }
+    link.send_raw(&frame).await
+}
+
+fn lock(signing: &SharedSigning) -> std::sync::MutexGuard<'_, Signing> {
+    signing
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 /// How a run differs from the mapping file alone.
 #[derive(Debug, Default)]
 pub struct RunOptions {
@@ -314,6 +397,7 @@ pub async fn run(
         links.push(connect(gcs).await?);
     }
     tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links open");
+    let signing = open_signing(&cfg, links.len(), record_dir.as_deref())?;
     let record = record_dir
         .filter(|_| cfg.record.enabled)
         .and_then(|dir| start_record(&cfg, &dir));
@@ -325,14 +409,16 @@ pub async fn run(
     for (link_id, link) in links.iter().enumerate() {
         let link = link.clone();
         let tx = msg_tx.clone();
+        let signing = signing.clone();
         readers.push(tokio::spawn(async move {
             loop {
-                match link.recv().await {
-                    Ok((header, msg)) => {
+                match receive(&link, link_id, signing.as_ref()).await {
+                    Ok(Some((header, msg))) => {
                         if tx.send((link_id, header, msg)).await.is_err() {
                             return;
                         }
                     }
+                    Ok(None) => {}
                     Err(e) => {
                         tracing::debug!(link = link_id, "MAVLink receive: {e}");
                         tokio::time::sleep(std::time::Duration::from_millis(20)).await;
@@ -446,7 +532,7 @@ pub async fn run(
                 };
                 for (i, link) in links.iter().enumerate() {
                     if out.link.is_none_or(|l| l == i)
-                        && let Err(e) = link.send(&header, &out.message).await
+                        && let Err(e) = send(link, i, signing.as_ref(), &header, &out.message).await
                     {
                         tracing::debug!(link = i, "MAVLink send: {e}");
                     }
@@ -467,6 +553,10 @@ pub async fn run(
                 output_rate_hz: core.requested_rate_hz(),
                 buses: statuses,
                 texts: texts.iter().cloned().collect(),
+                signing_drops: signing
+                    .as_ref()
+                    .map(|s| lock(s).drops())
+                    .unwrap_or_default(),
             });
         }
     }
