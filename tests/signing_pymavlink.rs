@@ -368,7 +368,7 @@ async fn the_passphrase_is_the_key_mavproxy_derives() {
         .wait_view(
             "outputs signed with the passphrase's key",
             Duration::from_secs(30),
-            |v| commanded(v),
+            commanded,
         )
         .await;
     let stdout = script_run.await.unwrap();

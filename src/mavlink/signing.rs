@@ -333,6 +333,8 @@ impl TimestampFile {
 
 /// What [`Signing::receive`] made of a frame.
 #[derive(Debug, Clone)]
+// Returned once per frame and taken apart at once: boxing would allocate for every message.
+#[allow(clippy::large_enum_variant)]
 pub enum Incoming {
     /// Correctly signed and fresh: for [`super::BridgeCore`].
     Message(MavHeader, MavMessage),
