@@ -31,8 +31,21 @@ const VIEW_PERIOD: std::time::Duration = std::time::Duration::from_millis(50);
 
 type Link = Arc<::mavlink::AsyncConnection<MavMessage>>;
 
-/// MAVLink 2 signing shared by the links' reader tasks and the send loop.
-type SharedSigning = Arc<Mutex<Signing>>;
+/// MAVLink 2 signing, shared by the links' reader tasks and the send loop, and where the
+/// timestamp reservations it asks for go to be written (by [`keep_reservations`]).
+#[derive(Clone)]
+struct SharedSigning {
+    signing: Arc<Mutex<Signing>>,
+    reservations: watch::Sender<u64>,
+}
+
+impl SharedSigning {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Signing> {
+        self.signing
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
 
 /// Why the bridge could not start.
 #[derive(Debug, Error)]
@@ -285,14 +298,27 @@ fn open_signing(
             .unwrap_or_else(std::env::temp_dir)
             .join("lj9da-bridge.signing-timestamp")
     });
-    let signing = Signing::open(
-        setup.key.clone(),
-        links,
-        Some(TimestampFile::new(&path)),
-        signing::now(),
-    )?;
+    let file = TimestampFile::new(&path);
+    let signing = Signing::open(setup.key.clone(), links, &file, signing::now())?;
     tracing::info!(timestamp_file = %path.display(), "MAVLink 2 signing on: every message signed, unsigned ones dropped");
-    Ok(Some(Arc::new(Mutex::new(signing))))
+    let (reservations, pending) = watch::channel(0);
+    tokio::spawn(keep_reservations(file, pending));
+    Ok(Some(SharedSigning {
+        signing: Arc::new(Mutex::new(signing)),
+        reservations,
+    }))
+}
+
+/// Write each new signing timestamp reservation, off the send path (a write waits for the
+/// disk); the latest one wins if they come faster than the disk. Ends with the bridge.
+async fn keep_reservations(file: TimestampFile, mut pending: watch::Receiver<u64>) {
+    while pending.changed().await.is_ok() {
+        let reservation = *pending.borrow_and_update();
+        let file = file.clone();
+        if let Ok(Err(e)) = tokio::task::spawn_blocking(move || file.store(reservation)).await {
+            tracing::warn!("{e}; a restart might reuse signing timestamps");
+        }
+    }
 }
 
 /// The next message for [`BridgeCore`] from `link`: every message without signing; with it,
@@ -306,7 +332,9 @@ async fn receive(
         return link.recv().await.map(Some);
     };
     let raw = link.recv_raw().await?;
-    let incoming = lock(signing).receive(link_id, &raw, signing::now(), Instant::now());
+    let incoming = signing
+        .lock()
+        .receive(link_id, &raw, signing::now(), Instant::now());
     Ok(match incoming {
         Incoming::Message(header, message) => Some((header, message)),
         Incoming::Unknown => None,
@@ -330,17 +358,13 @@ async fn send(
     let Some(signing) = signing else {
         return link.send(header, message).await;
     };
-    let (frame, error) = lock(signing).sign(link_id, *header, message, signing::now());
-    if let Some(e) = error {
-        tracing::warn!("{e}");
+    let (frame, reservation) = signing
+        .lock()
+        .sign(link_id, *header, message, signing::now());
+    if let Some(r) = reservation {
+        signing.reservations.send_replace(r);
     }
     link.send_raw(&frame).await
-}
-
-fn lock(signing: &SharedSigning) -> std::sync::MutexGuard<'_, Signing> {
-    signing
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// How a run differs from the mapping file alone.
@@ -555,7 +579,7 @@ pub async fn run(
                 texts: texts.iter().cloned().collect(),
                 signing_drops: signing
                     .as_ref()
-                    .map(|s| lock(s).drops())
+                    .map(|s| s.lock().drops())
                     .unwrap_or_default(),
             });
         }

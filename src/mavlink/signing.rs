@@ -22,9 +22,11 @@
 //!   sent are moreover never below a *reservation* kept in a small file ([`TimestampFile`]):
 //!   at start the first timestamp sent is max(reservation, now) and a new reservation
 //!   [`RESERVE_AHEAD`] beyond it is written (temporary file, fsync, rename) before anything is
-//!   sent; whenever a timestamp comes within [`RESERVE_MARGIN`] of the reservation, the next is
-//!   written first. A crash leaves the old file or the new one, and a restart — even with the
-//!   clock set back — starts above every timestamp the previous run could have sent.
+//!   sent ([`Signing::open`]); whenever a timestamp comes within [`RESERVE_MARGIN`] of the
+//!   reservation, [`Signing::sign`] asks for the next, which the caller writes off the send path
+//!   (the disk may be slow) while those [`RESERVE_MARGIN`] of timestamps last. A crash leaves the
+//!   old file or the new one, and a restart — even with the clock set back — starts above every
+//!   timestamp the previous run could have sent.
 //!
 //! The local timestamp that judges new incoming streams is max(now, reservation −
 //! [`RESERVE_AHEAD`], accepted timestamps), not the reservation itself: right after a restart
@@ -360,37 +362,37 @@ struct LinkState {
 pub struct Signing {
     key: SigningKey,
     timestamps: Timestamps,
-    file: Option<TimestampFile>,
     /// The last accepted timestamp per (our link, their link id, system, component).
     streams: HashMap<(usize, u8, u32, u8), u64>,
     links: Vec<LinkState>,
 }
 
 impl Signing {
-    /// Signing for `links` links with `key`, its timestamps kept in `file` (`None`: not kept,
-    /// for tests); `now` is the wall-clock signing timestamp. Reads the previous reservation and
-    /// writes the first one of this run.
+    /// Signing for `links` links with `key`, from the reservation the previous run left
+    /// (`stored`, `None`: none) at wall-clock timestamp `now`; returns the reservation to
+    /// persist before anything is sent.
+    pub fn new(key: SigningKey, links: usize, stored: Option<u64>, now: u64) -> (Self, u64) {
+        let (timestamps, reservation) = Timestamps::start(stored, now);
+        let signing = Signing {
+            key,
+            timestamps,
+            streams: HashMap::new(),
+            links: (0..links).map(|_| LinkState::default()).collect(),
+        };
+        (signing, reservation)
+    }
+
+    /// [`Signing::new`] from the reservation in `file`, the first one of this run written
+    /// there before returning.
     pub fn open(
         key: SigningKey,
         links: usize,
-        file: Option<TimestampFile>,
+        file: &TimestampFile,
         now: u64,
     ) -> Result<Self, TimestampFileError> {
-        let stored = match &file {
-            Some(f) => f.load()?,
-            None => None,
-        };
-        let (timestamps, reservation) = Timestamps::start(stored, now);
-        if let Some(f) = &file {
-            f.store(reservation)?;
-        }
-        Ok(Signing {
-            key,
-            timestamps,
-            file,
-            streams: HashMap::new(),
-            links: (0..links).map(|_| LinkState::default()).collect(),
-        })
+        let (signing, reservation) = Self::new(key, links, file.load()?, now);
+        file.store(reservation)?;
+        Ok(signing)
     }
 
     /// Each link's drops so far.
@@ -477,16 +479,17 @@ impl Signing {
     }
 
     /// `message` from `header`'s system and component, signed for `link` at wall-clock
-    /// timestamp `now`, with the link's next sequence number. When a reservation is due it is
-    /// written first; if that fails the error is returned beside the frame (the frame is still
-    /// good to send, but a restart might reuse its timestamp).
+    /// timestamp `now`, with the link's next sequence number; and the reservation to persist
+    /// when one is due. The caller writes it away from the send path ([`TimestampFile::store`]
+    /// may wait for the disk): the timestamps sent reach the previous reservation only
+    /// [`RESERVE_MARGIN`] later.
     pub fn sign(
         &mut self,
         link: usize,
         header: MavHeader,
         message: &MavMessage,
         now: u64,
-    ) -> (MAVLinkMessageRaw, Option<TimestampFileError>) {
+    ) -> (MAVLinkMessageRaw, Option<u64>) {
         let sequence = match self.links.get_mut(link) {
             Some(state) => {
                 let s = state.sequence;
@@ -496,10 +499,6 @@ impl Signing {
             None => 0,
         };
         let (timestamp, reserve) = self.timestamps.stamp(now);
-        let error = match (reserve, &self.file) {
-            (Some(r), Some(f)) => f.store(r).err(),
-            _ => None,
-        };
         let mut frame = MAVLinkV2MessageRaw::new();
         frame.serialize_message_for_signing(MavHeader { sequence, ..header }, message);
         *frame.signature_link_id_mut() = u8::try_from(link).unwrap_or(u8::MAX);
@@ -509,7 +508,7 @@ impl Signing {
         let mut signature = [0u8; 6];
         frame.calculate_signature(self.key.bytes(), &mut signature);
         frame.signature_value_mut().copy_from_slice(&signature);
-        (MAVLinkMessageRaw::V2(frame), error)
+        (MAVLinkMessageRaw::V2(frame), reserve)
     }
 }
 
@@ -539,7 +538,7 @@ mod tests {
     const T0: u64 = 11 * 365 * 86_400 * TICKS_PER_SECOND;
 
     fn signing(key: SigningKey) -> Signing {
-        Signing::open(key, 2, None, T0).unwrap()
+        Signing::new(key, 2, None, T0).0
     }
 
     fn receive(
@@ -652,8 +651,8 @@ mod tests {
     #[test]
     fn a_new_stream_more_than_a_minute_behind_is_dropped() {
         let sent_at = |t: u64| {
-            Signing::open(KEY, 1, None, t)
-                .unwrap()
+            Signing::new(KEY, 1, None, t)
+                .0
                 .sign(0, header(), &outputs(), t)
                 .0
         };
@@ -711,33 +710,43 @@ mod tests {
     fn a_restart_with_the_clock_set_back_still_sends_later_timestamps() {
         let dir = unique_dir("restart");
         let file = TimestampFile::new(dir.join("plane.toml.signing-timestamp"));
-        let mut first = Signing::open(KEY, 1, Some(file.clone()), T0).unwrap();
+        // As the bridge runs: each reservation due is written (there, on another task).
+        let send = |s: &mut Signing, now: u64| {
+            let (raw, reserve) = s.sign(0, header(), &outputs(), now);
+            if let Some(r) = reserve {
+                file.store(r).unwrap();
+            }
+            stamp_of(&raw)
+        };
+        let mut first = Signing::open(KEY, 1, &file, T0).unwrap();
         let mut last = 0;
         // A minute and a half of sending at 100 Hz: several reservations.
         for i in 0..9000 {
-            let (raw, e) = first.sign(0, header(), &outputs(), T0 + i * 1000);
-            assert!(e.is_none());
-            last = stamp_of(&raw);
+            last = send(&mut first, T0 + i * 1000);
         }
         let stored = file.load().unwrap().unwrap();
-        assert!(stored > last, "the reservation covers what was sent");
+        assert!(
+            stored >= last + RESERVE_MARGIN,
+            "the reservation covers what was sent"
+        );
         // Killed (no goodbye), restarted with the clock an hour back.
         drop(first);
         let back = T0 - 3600 * TICKS_PER_SECOND;
-        let mut second = Signing::open(KEY, 1, Some(file.clone()), back).unwrap();
+        let mut second = Signing::open(KEY, 1, &file, back).unwrap();
         let (raw, _) = second.sign(0, header(), &outputs(), back);
         assert!(stamp_of(&raw) > last);
-        // And a receiver that saw the first run accepts the second run's messages.
+        // A receiver that saw the first run accepts the second run's messages.
         let mut receiver = signing(KEY);
-        let (raw1, _) = Signing::open(KEY, 1, None, T0)
-            .unwrap()
+        let (raw1, _) = Signing::new(KEY, 1, None, T0)
+            .0
             .sign(0, header(), &outputs(), T0);
         assert!(receive(&mut receiver, &raw1, T0).is_ok());
         assert!(receive(&mut receiver, &raw, T0).is_ok());
         // A third start (the clock still back) is above the second's timestamps too.
+        let second_last = send(&mut second, back);
         drop(second);
-        let mut third = Signing::open(KEY, 1, Some(file.clone()), back).unwrap();
-        assert!(stamp_of(&third.sign(0, header(), &outputs(), back).0) > stamp_of(&raw));
+        let mut third = Signing::open(KEY, 1, &file, back).unwrap();
+        assert!(send(&mut third, back) > second_last);
         let _ = std::fs::remove_dir_all(dir);
     }
 
