@@ -9,6 +9,7 @@
 //!   and its commands are answered; one with another key sees nothing from the bridge and its
 //!   commands are dropped.
 //! - A mapping's `signing_passphrase` is the key MAVProxy's `signing setup` derives.
+//! - A restart with the clock behind the stored timestamp reservation signs above it.
 //!
 //! The Python environment: `$LJ9DA_PYTHON` if set (`.ci/run` sets it), else a virtual
 //! environment made once under the target directory with `pip install pymavlink`.
@@ -192,6 +193,9 @@ while time.time() < end:
             bridge_heartbeats += 1
 print("sent", sent)
 print("bridge_heartbeats", bridge_heartbeats)
+# The latest signature timestamp accepted from the bridge (pymavlink keeps one per stream).
+stamps = [t for (link, system, component), t in m.mav.signing.stream_timestamps.items() if component == 140]
+print("bridge_timestamp", max(stamps) if stamps else 0)
 stats(m)
 "#;
 
@@ -429,4 +433,43 @@ async fn a_ground_station_with_another_key_sees_nothing_and_is_not_answered() {
     // And the bridge dropped the ground station's commands.
     assert!(value(&stdout, "commands") >= 1, "{stdout}");
     assert!(view.signing_drops[1].bad_signature >= 1, "{view:?}");
+}
+
+/// A restart whose clock is behind the timestamps the previous run reserved (a companion
+/// computer without a real-time clock): the bridge still signs above the reservation, and a
+/// signed autopilot, which takes the bridge's newer timestamps as its own, is obeyed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restart_behind_the_stored_timestamp_signs_above_it() {
+    let (text, ts) = keyed("restart");
+    let ten_minutes_ahead = lj9da_bridge::mavlink::signing::now() + 600 * 100_000;
+    std::fs::write(&ts, format!("{ten_minutes_ahead}\n")).unwrap();
+    let chain = Chain::start_opts(&text, ChainOptions::default()).await;
+    let args = vec![
+        chain.autopilot_port.to_string(),
+        "6".into(),
+        "key".into(),
+        KEY_HEX.into(),
+    ];
+    let script_run = tokio::spawn(run_script(script(AUTOPILOT), args, "autopilot"));
+    chain
+        .wait_view(
+            "the signed outputs to set a goal",
+            Duration::from_secs(30),
+            commanded,
+        )
+        .await;
+    let stdout = script_run.await.unwrap();
+    assert!(
+        value(&stdout, "bridge_timestamp") >= ten_minutes_ahead,
+        "{stdout}"
+    );
+    assert_eq!(value(&stdout, "badsig"), 0, "{stdout}");
+    chain.stop().await;
+    let reserved: u64 = std::fs::read_to_string(&ts)
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    assert!(reserved > ten_minutes_ahead);
+    let _ = std::fs::remove_file(ts);
 }
