@@ -7,7 +7,7 @@
 //!   dropped and counted per reason in the bridge's view.
 //! - A signed ground station sees the bridge's HEARTBEAT and telemetry, verified by pymavlink,
 //!   and its commands are answered; one with another key sees nothing from the bridge and its
-//!   commands are dropped.
+//!   commands are dropped; an unsigned one hears the bridge but its commands are dropped too.
 //! - A mapping's `signing_passphrase` is the key MAVProxy's `signing setup` derives.
 //! - A restart with the clock behind the stored timestamp reservation signs above it.
 //!
@@ -473,4 +473,15 @@ async fn a_restart_behind_the_stored_timestamp_signs_above_it() {
         .unwrap();
     assert!(reserved > ten_minutes_ahead);
     let _ = std::fs::remove_file(ts);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_unsigned_ground_station_hears_the_bridge_but_is_not_answered() {
+    let (stdout, view) = ground_station_run("none", "-", "unsigned-gcs").await;
+    // Without a key pymavlink does not check signatures: it hears the bridge.
+    assert!(value(&stdout, "heartbeats") >= 2, "{stdout}");
+    // Its commands are dropped as unsigned, never answered.
+    assert!(value(&stdout, "commands") >= 2, "{stdout}");
+    assert_eq!(value(&stdout, "acks"), 0, "{stdout}");
+    assert!(view.signing_drops[1].unsigned >= 1, "{view:?}");
 }
