@@ -77,8 +77,9 @@ pub enum KeyError {
         "is {0} characters long; a signing key is 64 hex digits (32 bytes), e.g. the output of `openssl rand -hex 32`"
     )]
     HexLength(usize),
-    #[error("has {0:?} at character {1}, which is not a hex digit (0-9, a-f)")]
-    NotHex(char, usize),
+    /// At this character (from 1); the character itself is not quoted, being part of a secret.
+    #[error("has a character that is not a hex digit (0-9, a-f) at position {0}")]
+    NotHex(usize),
     #[error(
         "holds {0} bytes; a key file holds 64 hex digits (surrounding white space allowed) or exactly 32 raw bytes"
     )]
@@ -99,12 +100,8 @@ impl SigningKey {
     /// 64 hex digits, either case.
     pub fn from_hex(text: &str) -> Result<Self, KeyError> {
         let count = text.chars().count();
-        if let Some((i, c)) = text
-            .chars()
-            .enumerate()
-            .find(|(_, c)| !c.is_ascii_hexdigit())
-        {
-            return Err(KeyError::NotHex(c, i + 1));
+        if let Some(i) = text.chars().position(|c| !c.is_ascii_hexdigit()) {
+            return Err(KeyError::NotHex(i + 1));
         }
         if count != 64 {
             return Err(KeyError::HexLength(count));
@@ -815,7 +812,7 @@ mod tests {
         );
         assert_eq!(
             SigningKey::from_hex(&format!("{}g", &hex[..63])),
-            Err(KeyError::NotHex('g', 64))
+            Err(KeyError::NotHex(64))
         );
         assert_eq!(
             SigningKey::from_file_contents(format!("  {hex}\n").as_bytes()),
