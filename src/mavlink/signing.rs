@@ -244,7 +244,9 @@ impl Timestamps {
 /// Why the timestamp file could not be used.
 #[derive(Debug, Error)]
 pub enum TimestampFileError {
-    #[error("cannot read the signing timestamp file {path}: {source}")]
+    #[error(
+        "cannot read the signing timestamp file {path}: {source} (set [mavlink] signing_timestamp_file to a place the bridge can read and write)"
+    )]
     Read {
         path: PathBuf,
         #[source]
@@ -744,6 +746,24 @@ mod tests {
         drop(second);
         let mut third = Signing::open(KEY, 1, &file, back).unwrap();
         assert!(send(&mut third, back) > second_last);
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[test]
+    fn signing_does_not_open_where_its_timestamps_cannot_be_kept() {
+        // A folder that cannot exist: a path under a regular file.
+        let dir = unique_dir("unwritable");
+        std::fs::write(dir.join("file"), "").unwrap();
+        let file = TimestampFile::new(dir.join("file/ts"));
+        let e = Signing::open(KEY, 1, &file, T0).expect_err("no place for the file");
+        assert!(
+            matches!(
+                e,
+                TimestampFileError::Read { .. } | TimestampFileError::Write { .. }
+            ),
+            "{e}"
+        );
+        assert!(e.to_string().contains("signing_timestamp_file"), "{e}");
         let _ = std::fs::remove_dir_all(dir);
     }
 
