@@ -322,10 +322,12 @@ async fn keep_reservations(file: TimestampFile, mut pending: watch::Receiver<u64
 }
 
 /// The next message for [`BridgeCore`] from `link`: every message without signing; with it,
-/// only correctly signed fresh ones (the others are counted and, now and then, logged).
+/// only correctly signed fresh ones (the others are counted and, now and then, logged with the
+/// link's `address`).
 async fn receive(
     link: &Link,
     link_id: LinkId,
+    address: &str,
     signing: Option<&SharedSigning>,
 ) -> Result<Option<(MavHeader, MavMessage)>, ::mavlink::error::MessageReadError> {
     let Some(signing) = signing else {
@@ -340,7 +342,7 @@ async fn receive(
         Incoming::Unknown => None,
         Incoming::Dropped { warning, .. } => {
             if let Some(w) = warning {
-                tracing::warn!("{w}");
+                tracing::warn!(%address, "{w}");
             }
             None
         }
@@ -430,13 +432,15 @@ pub async fn run(
 
     let (msg_tx, mut msg_rx) = mpsc::channel::<(LinkId, MavHeader, MavMessage)>(1024);
     let mut readers = Vec::new();
-    for (link_id, link) in links.iter().enumerate() {
+    let addresses = std::iter::once(&cfg.mavlink.connection).chain(&cfg.mavlink.gcs);
+    for ((link_id, link), address) in links.iter().enumerate().zip(addresses) {
         let link = link.clone();
         let tx = msg_tx.clone();
         let signing = signing.clone();
+        let address = address.clone();
         readers.push(tokio::spawn(async move {
             loop {
-                match receive(&link, link_id, signing.as_ref()).await {
+                match receive(&link, link_id, &address, signing.as_ref()).await {
                     Ok(Some((header, msg))) => {
                         if tx.send((link_id, header, msg)).await.is_err() {
                             return;
