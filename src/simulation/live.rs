@@ -113,7 +113,10 @@ impl LiveModel {
                 if view.failsafe { "ACTIVE" } else { "no" },
                 super::table::signing_text(view)
             ),
-            None => "waiting for the autopilot's heartbeat".into(),
+            None => format!(
+                "waiting for the autopilot's heartbeat{}",
+                super::table::signing_text(view)
+            ),
         };
         self.failsafe = view.failsafe;
         self.servos
