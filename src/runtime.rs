@@ -12,6 +12,7 @@ use crate::bus::{
 use crate::config::edit::MappingFile;
 use crate::config::{Config, ExitAction};
 use crate::mavlink::param_server::ParamSet;
+use crate::mavlink::signing::{self, DropCounts, Incoming, Signing, TimestampFile};
 use crate::mavlink::{
     BridgeCore, BridgeEvent, LinkId, ServoEvent, ServoReport, ServoState, TemperatureReading,
 };
@@ -21,7 +22,7 @@ use ::mavlink::dialects::common::MavMessage;
 use ::mavlink::{AsyncMavConnection, MavHeader};
 use std::collections::HashMap;
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 use thiserror::Error;
 use tokio::sync::{mpsc, watch};
@@ -30,6 +31,22 @@ use tokio::sync::{mpsc, watch};
 const VIEW_PERIOD: std::time::Duration = std::time::Duration::from_millis(50);
 
 type Link = Arc<::mavlink::AsyncConnection<MavMessage>>;
+
+/// MAVLink 2 signing, shared by the links' reader tasks and the send loop, and where the
+/// timestamp reservations it asks for go to be written (by [`keep_reservations`]).
+#[derive(Clone)]
+struct SharedSigning {
+    signing: Arc<Mutex<Signing>>,
+    reservations: watch::Sender<u64>,
+}
+
+impl SharedSigning {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Signing> {
+        self.signing
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
 
 /// Why the bridge could not start.
 #[derive(Debug, Error)]
@@ -40,6 +57,8 @@ pub enum RunError {
         #[source]
         source: std::io::Error,
     },
+    #[error(transparent)]
+    Signing(#[from] signing::TimestampFileError),
 }
 
 /// One servo as the live table shows it.
@@ -65,6 +84,9 @@ pub struct BridgeView {
     pub buses: Vec<BusStatus>,
     /// The latest STATUSTEXTs sent, oldest first (at most [`VIEW_TEXTS`]).
     pub texts: Vec<String>,
+    /// With signing on: per link (the autopilot's, then the ground station's) the incoming
+    /// messages dropped as unsigned, badly signed or replayed. Empty with signing off.
+    pub signing_drops: Vec<DropCounts>,
 }
 
 /// How many of the latest STATUSTEXTs the view keeps.
@@ -267,6 +289,93 @@ async fn connect(address: &str) -> Result<Link, RunError> {
     Ok(Arc::new(conn))
 }
 
+/// Signing for `links` links as the mapping asks (`None`: off). The timestamp file of a mapping
+/// given without a file goes in the flight record's folder, or the temporary folder.
+fn open_signing(
+    cfg: &Config,
+    links: usize,
+    record_dir: Option<&std::path::Path>,
+) -> Result<Option<SharedSigning>, RunError> {
+    let Some(setup) = &cfg.mavlink.signing else {
+        return Ok(None);
+    };
+    let path = setup.timestamp_file.clone().unwrap_or_else(|| {
+        record_dir
+            .map(std::path::Path::to_path_buf)
+            .unwrap_or_else(std::env::temp_dir)
+            .join("lj9da-bridge.signing-timestamp")
+    });
+    let file = TimestampFile::new(&path);
+    let signing = Signing::open(setup.key.clone(), links, &file, signing::now())?;
+    tracing::info!(timestamp_file = %path.display(), "MAVLink 2 signing on: every message signed, unsigned ones dropped");
+    let (reservations, pending) = watch::channel(0);
+    tokio::spawn(keep_reservations(file, pending));
+    Ok(Some(SharedSigning {
+        signing: Arc::new(Mutex::new(signing)),
+        reservations,
+    }))
+}
+
+/// Write each new signing timestamp reservation, off the send path (a write waits for the
+/// disk); the latest one wins if they come faster than the disk. Ends with the bridge.
+async fn keep_reservations(file: TimestampFile, mut pending: watch::Receiver<u64>) {
+    while pending.changed().await.is_ok() {
+        let reservation = *pending.borrow_and_update();
+        let file = file.clone();
+        if let Ok(Err(e)) = tokio::task::spawn_blocking(move || file.store(reservation)).await {
+            tracing::warn!("{e}; a restart might reuse signing timestamps");
+        }
+    }
+}
+
+/// The next message for [`BridgeCore`] from `link`: every message without signing; with it,
+/// only correctly signed fresh ones (the others are counted and, now and then, logged with the
+/// link's `address`).
+async fn receive(
+    link: &Link,
+    link_id: LinkId,
+    address: &str,
+    signing: Option<&SharedSigning>,
+) -> Result<Option<(MavHeader, MavMessage)>, ::mavlink::error::MessageReadError> {
+    let Some(signing) = signing else {
+        return link.recv().await.map(Some);
+    };
+    let raw = link.recv_raw().await?;
+    let incoming = signing
+        .lock()
+        .receive(link_id, &raw, signing::now(), Instant::now());
+    Ok(match incoming {
+        Incoming::Message(header, message) => Some((header, message)),
+        Incoming::Unknown => None,
+        Incoming::Dropped { warning, .. } => {
+            if let Some(w) = warning {
+                tracing::warn!(%address, "{w}");
+            }
+            None
+        }
+    })
+}
+
+/// Send `message` on `link`, signed when signing is on.
+async fn send(
+    link: &Link,
+    link_id: LinkId,
+    signing: Option<&SharedSigning>,
+    header: &MavHeader,
+    message: &MavMessage,
+) -> Result<usize, ::mavlink::error::MessageWriteError> {
+    let Some(signing) = signing else {
+        return link.send(header, message).await;
+    };
+    let (frame, reservation) = signing
+        .lock()
+        .sign(link_id, *header, message, signing::now());
+    if let Some(r) = reservation {
+        signing.reservations.send_replace(r);
+    }
+    link.send_raw(&frame).await
+}
+
 /// How a run differs from the mapping file alone.
 #[derive(Debug, Default)]
 pub struct RunOptions {
@@ -382,6 +491,7 @@ pub async fn run(
         links.push(connect(gcs).await?);
     }
     tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links open");
+    let signing = open_signing(&cfg, links.len(), record_dir.as_deref())?;
     let record = record_dir
         .filter(|_| cfg.record.enabled)
         .and_then(|dir| start_record(&cfg, &dir));
@@ -390,17 +500,21 @@ pub async fn run(
 
     let (msg_tx, mut msg_rx) = mpsc::channel::<(LinkId, MavHeader, MavMessage)>(1024);
     let mut readers = Vec::new();
-    for (link_id, link) in links.iter().enumerate() {
+    let addresses = std::iter::once(&cfg.mavlink.connection).chain(&cfg.mavlink.gcs);
+    for ((link_id, link), address) in links.iter().enumerate().zip(addresses) {
         let link = link.clone();
         let tx = msg_tx.clone();
+        let signing = signing.clone();
+        let address = address.clone();
         readers.push(tokio::spawn(async move {
             loop {
-                match link.recv().await {
-                    Ok((header, msg)) => {
+                match receive(&link, link_id, &address, signing.as_ref()).await {
+                    Ok(Some((header, msg))) => {
                         if tx.send((link_id, header, msg)).await.is_err() {
                             return;
                         }
                     }
+                    Ok(None) => {}
                     Err(e) => {
                         tracing::debug!(link = link_id, "MAVLink receive: {e}");
                         tokio::time::sleep(std::time::Duration::from_millis(20)).await;
@@ -512,7 +626,7 @@ pub async fn run(
                 };
                 for (i, link) in links.iter().enumerate() {
                     if out.link.is_none_or(|l| l == i)
-                        && let Err(e) = link.send(&header, &out.message).await
+                        && let Err(e) = send(link, i, signing.as_ref(), &header, &out.message).await
                     {
                         tracing::debug!(link = i, "MAVLink send: {e}");
                     }
@@ -533,6 +647,10 @@ pub async fn run(
                 output_rate_hz: core.requested_rate_hz(),
                 buses: statuses,
                 texts: texts.iter().cloned().collect(),
+                signing_drops: signing
+                    .as_ref()
+                    .map(|s| s.lock().drops())
+                    .unwrap_or_default(),
             });
         }
     }

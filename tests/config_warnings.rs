@@ -8,7 +8,7 @@ fn mapping(source: &str, channel: u8) -> String {
     format!(
         r#"
 [mavlink]
-connection = "udpin:0.0.0.0:14540"
+connection = "udpin:127.0.0.1:14540"
 source = "{source}"
 
 [[bus]]
@@ -70,7 +70,7 @@ fn check_prints_the_warnings_after_the_table() {
 
 fn servos(n: usize, telemetry: &str) -> String {
     let mut text = format!(
-        "[mavlink]\nconnection = \"udpin:0.0.0.0:14560\"\n[telemetry]\n{telemetry}\n[[bus]]\nname = \"wing\"\nport = \"/dev/null\"\n"
+        "[mavlink]\nconnection = \"udpin:127.0.0.1:14560\"\n[telemetry]\n{telemetry}\n[[bus]]\nname = \"wing\"\nport = \"/dev/null\"\n"
     );
     for i in 1..=n {
         text.push_str(&format!(

@@ -3,7 +3,9 @@
 
 use super::error::{ConfigError, Scope};
 use super::raw::{RawMavlink, RawTelemetry};
+use crate::mavlink::signing::SigningKey;
 use std::fmt;
+use std::path::{Path, PathBuf};
 use toml::Spanned;
 
 /// The connection types of the `mavlink` crate's address strings that the bridge accepts.
@@ -101,7 +103,46 @@ pub struct MavlinkConfig {
     /// An extra, telemetry-only output (e.g. `udpout:127.0.0.1:14550`) for a ground station
     /// that the autopilot does not route to.
     pub gcs: Option<String>,
+    /// MAVLink 2 signing on every link; `None`: off (messages neither signed nor checked).
+    pub signing: Option<SigningSetup>,
 }
+
+/// Where a signing key came from (what `check` shows instead of the key).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum KeySource {
+    /// `signing_key`: 64 hex digits in the mapping file.
+    Hex,
+    /// `signing_key_file`: read from this file.
+    File(PathBuf),
+    /// `signing_passphrase`: SHA-256 of the passphrase, as MAVProxy's `signing setup` derives it.
+    Passphrase,
+}
+
+impl fmt::Display for KeySource {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            KeySource::Hex => f.write_str("key in the file"),
+            KeySource::File(path) => write!(f, "key from {}", path.display()),
+            KeySource::Passphrase => f.write_str("key from a passphrase"),
+        }
+    }
+}
+
+/// MAVLink 2 signing, from the `signing_*` keys of `[mavlink]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SigningSetup {
+    /// The secret (its `Debug` does not show it).
+    pub key: SigningKey,
+    pub key_source: KeySource,
+    /// Where the signing timestamp's reservation is kept: `signing_timestamp_file` (relative to
+    /// the mapping file's folder), else `<mapping file>.signing-timestamp`. `None` for a mapping
+    /// given as text without a file (the bridge then keeps it in the flight record's folder, or
+    /// the system's temporary folder).
+    pub timestamp_file: Option<PathBuf>,
+}
+
+/// The file name the default signing timestamp file gets beside a mapping file.
+pub const SIGNING_TIMESTAMP_SUFFIX: &str = ".signing-timestamp";
 
 /// A servo quantity that NAMED_VALUE_FLOAT can carry, named by its name suffix.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -250,8 +291,108 @@ fn rate(scope: &Scope<'_>, value: &Spanned<f64>, key: &str, max: f64) -> Result<
     }
 }
 
+/// A path from the file: relative to the mapping file's folder (or the current folder).
+fn resolve(path: &str, mapping: Option<&Path>) -> PathBuf {
+    let path = PathBuf::from(path);
+    match mapping.and_then(Path::parent) {
+        Some(dir) if path.is_relative() => dir.join(path),
+        _ => path,
+    }
+}
+
+/// The `signing_*` keys: at most one key form, each checked, and where timestamps are kept.
+fn signing(
+    raw: &RawMavlink,
+    scope: &Scope<'_>,
+    mapping: Option<&Path>,
+) -> Result<Option<SigningSetup>, ConfigError> {
+    let forms = [
+        ("signing_key", &raw.signing_key),
+        ("signing_key_file", &raw.signing_key_file),
+        ("signing_passphrase", &raw.signing_passphrase),
+    ];
+    let given: Vec<(&str, &Spanned<String>)> = forms
+        .iter()
+        .filter_map(|(key, value)| value.as_ref().map(|v| (*key, v)))
+        .collect();
+    let (key, key_source) = match given.as_slice() {
+        [] => {
+            if let Some(t) = &raw.signing_timestamp_file {
+                return Err(scope.error_on(
+                    t,
+                    "signing_timestamp_file",
+                    "is set but signing is off; add signing_key, signing_key_file or signing_passphrase, or remove this key",
+                ));
+            }
+            return Ok(None);
+        }
+        [(name, value)] => {
+            // The reasons never quote the key.
+            let text = value.get_ref();
+            match *name {
+                "signing_key" => (
+                    SigningKey::from_hex(text.trim())
+                        .map_err(|e| scope.error_on(value, name, format!("the key {e}")))?,
+                    KeySource::Hex,
+                ),
+                "signing_key_file" => {
+                    let path = resolve(text.trim(), mapping);
+                    let contents = std::fs::read(&path).map_err(|e| {
+                        scope.error_on(value, name, format!("cannot read {}: {e}", path.display()))
+                    })?;
+                    let key = SigningKey::from_file_contents(&contents).map_err(|e| {
+                        scope.error_on(value, name, format!("{} {e}", path.display()))
+                    })?;
+                    (key, KeySource::File(path))
+                }
+                _ => (
+                    SigningKey::from_passphrase(text)
+                        .map_err(|e| scope.error_on(value, name, format!("the passphrase {e}")))?,
+                    KeySource::Passphrase,
+                ),
+            }
+        }
+        [(first, _), (second, value), ..] => {
+            return Err(scope.error_on(
+                value,
+                second,
+                format!(
+                    "{first} is set as well; give the signing key one way only (signing_key, signing_key_file or signing_passphrase)"
+                ),
+            ));
+        }
+    };
+    let timestamp_file = match &raw.signing_timestamp_file {
+        Some(t) if t.get_ref().trim().is_empty() => {
+            return Err(scope.error_on(
+                t,
+                "signing_timestamp_file",
+                format!(
+                    "is empty; leave the key out for <mapping file>{SIGNING_TIMESTAMP_SUFFIX} beside this file"
+                ),
+            ));
+        }
+        Some(t) => Some(resolve(t.get_ref().trim(), mapping)),
+        None => mapping.map(|m| {
+            let mut name = m.as_os_str().to_os_string();
+            name.push(SIGNING_TIMESTAMP_SUFFIX);
+            PathBuf::from(name)
+        }),
+    };
+    Ok(Some(SigningSetup {
+        key,
+        key_source,
+        timestamp_file,
+    }))
+}
+
 impl MavlinkConfig {
-    pub(crate) fn from_raw(raw: &RawMavlink, scope: &Scope<'_>) -> Result<Self, ConfigError> {
+    /// `mapping`: the mapping file's path, for the relative paths of the signing keys.
+    pub(crate) fn from_raw(
+        raw: &RawMavlink,
+        scope: &Scope<'_>,
+        mapping: Option<&Path>,
+    ) -> Result<Self, ConfigError> {
         let connection = raw.connection.get_ref().trim().to_string();
         check_connection(&connection)
             .map_err(|reason| scope.error_on(&raw.connection, "connection", reason))?;
@@ -363,6 +504,7 @@ impl MavlinkConfig {
             output_rate_hz,
             failsafe_timeout_ms,
             gcs,
+            signing: signing(raw, scope, mapping)?,
         })
     }
 }

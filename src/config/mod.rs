@@ -16,6 +16,8 @@
 //! | | `output_rate_hz` | 50 | requested rate; ArduPilot denies more than 0.8 × SCHED_LOOP_RATE |
 //! | | `failsafe_timeout_ms` | 500 | no message carrying a servo's channel for this long → its failsafe |
 //! | | `gcs` | none | an extra telemetry-only output (the autopilot's HEARTBEAT is relayed there), e.g. `udpout:127.0.0.1:14550` |
+//! | | `signing_key` / `signing_key_file` / `signing_passphrase` | none (signing off) | MAVLink 2 signing: 64 hex digits, a file of them (or of 32 raw bytes), or MAVProxy's passphrase; at most one |
+//! | | `signing_timestamp_file` | `<mapping file>.signing-timestamp` | where the signing timestamp's reservation is kept |
 //! | `[telemetry]` | `rate_hz` | 1 | how often NAMED_VALUE_FLOAT values are looked at; sent when changed, or every 5 s |
 //! | | `named_values` | `["pos", "cur", "tmp", "vlt"]` | which quantities go out as NAMED_VALUE_FLOAT |
 //! | | `esc_info_hz`, `esc_status_hz` | 1, 1 | the rates of ESC_INFO and ESC_STATUS |
@@ -90,14 +92,22 @@ impl Config {
             path: path.to_path_buf(),
             source,
         })?;
-        Self::parse(&text, &path.display().to_string())
+        Self::parse_at(&text, &path.display().to_string(), Some(path))
     }
 
     /// Validate the text of a mapping file; `origin` is the file name used in error messages.
+    /// Paths in it (`signing_key_file`, `signing_timestamp_file`) are relative to the current
+    /// folder, and a signing timestamp file has no default place (see
+    /// [`mavlink::SigningSetup::timestamp_file`]).
     pub fn parse(text: &str, origin: &str) -> Result<Config, ConfigError> {
+        Self::parse_at(text, origin, None)
+    }
+
+    /// As [`Config::parse`], for the file at `path` (`None`: text without a file).
+    pub fn parse_at(text: &str, origin: &str, path: Option<&Path>) -> Result<Config, ConfigError> {
         let doc = Doc::new(text, origin);
         let raw: RawFile = toml::from_str(text).map_err(|e| doc.toml_error(&e))?;
-        Self::from_raw(&raw, doc)
+        Self::from_raw(&raw, doc, path)
     }
 
     /// The built-in airframe used by `lj9da-bridge sitl` without a mapping file: four servos
@@ -132,7 +142,7 @@ impl Config {
         warnings::warnings(self)
     }
 
-    fn from_raw(raw: &RawFile, doc: Doc<'_>) -> Result<Config, ConfigError> {
+    fn from_raw(raw: &RawFile, doc: Doc<'_>, path: Option<&Path>) -> Result<Config, ConfigError> {
         let Some(raw_mavlink) = &raw.mavlink else {
             return Err(doc.error_at(
                 Some(0),
@@ -141,7 +151,8 @@ impl Config {
                 "the file has no [mavlink] table; add one with e.g. connection = \"udpin:0.0.0.0:14560\"",
             ));
         };
-        let mavlink = MavlinkConfig::from_raw(raw_mavlink.get_ref(), &doc.scope("[mavlink]"))?;
+        let mavlink =
+            MavlinkConfig::from_raw(raw_mavlink.get_ref(), &doc.scope("[mavlink]"), path)?;
         let telemetry = match &raw.telemetry {
             None => TelemetryConfig::default(),
             Some(t) => TelemetryConfig::from_raw(t.get_ref(), &doc.scope("[telemetry]"))?,

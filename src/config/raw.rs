@@ -31,6 +31,10 @@ pub(crate) struct RawMavlink {
     pub output_rate_hz: Option<Spanned<f64>>,
     pub failsafe_timeout_ms: Option<Spanned<i64>>,
     pub gcs: Option<Spanned<String>>,
+    pub signing_key: Option<Spanned<String>>,
+    pub signing_key_file: Option<Spanned<String>>,
+    pub signing_passphrase: Option<Spanned<String>>,
+    pub signing_timestamp_file: Option<Spanned<String>>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -19,6 +19,17 @@ pub(super) fn resolved_table(config: &Config) -> String {
         "mavlink: {} | {system} | autopilot component {} | bridge component {}\n",
         m.connection, m.autopilot_component_id, m.component_id
     );
+    out.push_str(&match &m.signing {
+        None => "signing: off\n".to_string(),
+        Some(s) => format!(
+            "signing: MAVLink 2, every message signed and checked ({}) | timestamps kept in {}\n",
+            s.key_source,
+            s.timestamp_file.as_ref().map_or_else(
+                || "the flight record's folder".to_string(),
+                |p| p.display().to_string()
+            )
+        ),
+    });
     out.push_str(&format!(
         "outputs: {} requested at {} Hz | failsafe after {} ms without outputs\n",
         m.source, m.output_rate_hz, m.failsafe_timeout_ms

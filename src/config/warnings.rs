@@ -15,7 +15,55 @@ pub fn warnings(cfg: &Config) -> Vec<String> {
     let mut out = Vec::new();
     out.extend(px4_port_1_channels(cfg));
     out.extend(mission_planner_names(cfg));
+    out.extend(unsigned_outside_links(cfg));
     out
+}
+
+/// Whether a connection address stays on this computer: a network address whose host is
+/// 127.x.x.x, ::1 or localhost. A serial port, `0.0.0.0` (every interface) and any other host
+/// are reachable from outside.
+pub fn is_loopback(address: &str) -> bool {
+    let Some((scheme, rest)) = address.split_once(':') else {
+        return false;
+    };
+    if scheme == "serial" {
+        return false;
+    }
+    let host = rest.rsplit_once(':').map_or(rest, |(host, _)| host);
+    let host = host.trim_start_matches('[').trim_end_matches(']');
+    host.eq_ignore_ascii_case("localhost")
+        || host
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
+}
+
+/// Without signing, anyone who can reach a link can command the servos.
+fn unsigned_outside_links(cfg: &Config) -> Option<String> {
+    let m = &cfg.mavlink;
+    if m.signing.is_some() {
+        return None;
+    }
+    let outside: Vec<String> = [("connection", Some(&m.connection)), ("gcs", m.gcs.as_ref())]
+        .into_iter()
+        .filter_map(|(key, address)| {
+            let address = address?;
+            (!is_loopback(address)).then(|| format!("{key} = \"{address}\""))
+        })
+        .collect();
+    if outside.is_empty() {
+        return None;
+    }
+    Some(format!(
+        "warning: MAVLink 2 signing is off and {} not on this computer alone (a serial port, or \
+         a host other than 127.0.0.1, ::1 or localhost): whoever can send on it can move the \
+         servos. Set [mavlink] signing_passphrase to the passphrase given to the autopilot \
+         (MAVProxy: `signing setup <passphrase>`), or signing_key / signing_key_file.",
+        if outside.len() == 1 {
+            format!("{} is", outside[0])
+        } else {
+            format!("{} are", outside.join(" and "))
+        }
+    ))
 }
 
 /// PX4 streams SERVO_OUTPUT_RAW for its first output driver only (MAV_CMD_SET_MESSAGE_INTERVAL

@@ -10,6 +10,8 @@
 //! - [`telemetry`]: HEARTBEAT, NAMED_VALUE_FLOAT, ESC_INFO/ESC_STATUS and STATUSTEXT builders.
 //! - [`statustext`]: event texts, severities and the flood guard.
 //! - [`health`]: the servo reports and events the telemetry is made from.
+//! - [`signing`]: MAVLink 2 signing: incoming messages checked and counted, outgoing ones
+//!   signed, timestamps that survive a restart.
 
 pub mod commands;
 pub mod core;
@@ -18,6 +20,7 @@ pub mod outputs;
 pub mod param_server;
 pub mod params;
 pub mod schedule;
+pub mod signing;
 pub mod statustext;
 pub mod telemetry;
 

@@ -7,14 +7,17 @@
 //! - a requested rate above 0.8 × the loop rate is DENIED, as ArduPilot does;
 //! - unassigned channels read 0; assigned channels sweep like a flight.
 //!
-//! It can stop and resume its output stream on request, for failsafe tests.
+//! It can stop and resume its output stream on request, for failsafe tests. With a signing key
+//! (the mapping's) it signs everything and ignores unsigned messages, as ArduPilot does on a
+//! port after `signing setup`.
 
 use crate::mavlink::outputs::servo_output_raw;
+use crate::mavlink::signing::SigningKey;
 use mavlink::dialects::common::{
     COMMAND_ACK_DATA, HEARTBEAT_DATA, MavAutopilot, MavCmd, MavMessage, MavModeFlag, MavResult,
     MavState, MavType,
 };
-use mavlink::{AsyncMavConnection, MavHeader};
+use mavlink::{AsyncMavConnection, MavHeader, SigningConfig};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -33,6 +36,9 @@ pub struct AutopilotConfig {
     pub default_rate_hz: f32,
     /// Channels (1–16) with an output function; the others read 0.
     pub channels: Vec<u8>,
+    /// MAVLink 2 signing with this key, as an autopilot after `signing setup`: everything sent
+    /// is signed, unsigned or badly signed messages are ignored. `None`: no signing.
+    pub signing_key: Option<SigningKey>,
 }
 
 impl Default for AutopilotConfig {
@@ -44,6 +50,7 @@ impl Default for AutopilotConfig {
             loop_rate_hz: 50.0,
             default_rate_hz: 4.0,
             channels: vec![1, 2, 3, 4],
+            signing_key: None,
         }
     }
 }
@@ -60,6 +67,7 @@ impl AutopilotConfig {
                 .map(|s| s.channel)
                 .filter(|c| *c <= 16)
                 .collect(),
+            signing_key: cfg.mavlink.signing.as_ref().map(|s| s.key.clone()),
             ..Default::default()
         }
     }
@@ -115,6 +123,10 @@ pub async fn run(
 ) -> std::io::Result<()> {
     let mut conn = mavlink::connect_async::<MavMessage>(&cfg.connection).await?;
     conn.set_allow_recv_any_version(true);
+    if let Some(key) = &cfg.signing_key {
+        // The `mavlink` crate's own signing: a simulator need not count what it drops.
+        conn.setup_signing(Some(SigningConfig::new(*key.bytes(), 0, true, false)));
+    }
     let conn = Arc::new(conn);
     let header = MavHeader {
         system_id: u32::from(cfg.system_id),

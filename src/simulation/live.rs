@@ -108,11 +108,15 @@ impl LiveModel {
     pub fn update(&mut self, view: &BridgeView, log: Vec<String>) {
         self.link = match view.autopilot {
             Some((s, c)) => format!(
-                "autopilot {s}/{c}   output rate asked: {:.0} Hz   failsafe: {}",
+                "autopilot {s}/{c}   output rate asked: {:.0} Hz   failsafe: {}{}",
                 view.output_rate_hz,
-                if view.failsafe { "ACTIVE" } else { "no" }
+                if view.failsafe { "ACTIVE" } else { "no" },
+                super::table::signing_text(view)
             ),
-            None => "waiting for the autopilot's heartbeat".into(),
+            None => format!(
+                "waiting for the autopilot's heartbeat{}",
+                super::table::signing_text(view)
+            ),
         };
         self.failsafe = view.failsafe;
         self.servos

@@ -12,6 +12,22 @@ fn opt(v: Option<f32>, width: usize, decimals: usize) -> String {
     }
 }
 
+/// With signing on, what the links dropped (appended to the autopilot line); empty otherwise.
+pub fn signing_text(view: &BridgeView) -> String {
+    if view.signing_drops.is_empty() {
+        return String::new();
+    }
+    let sum = |f: fn(&crate::mavlink::signing::DropCounts) -> u64| {
+        view.signing_drops.iter().map(f).sum::<u64>()
+    };
+    format!(
+        "   signed, dropped: {} unsigned, {} bad signature, {} old timestamp",
+        sum(|d| d.unsigned),
+        sum(|d| d.bad_signature),
+        sum(|d| d.old_timestamp)
+    )
+}
+
 /// The table as text.
 pub fn render(view: &BridgeView) -> String {
     let mut out = String::new();
@@ -21,9 +37,10 @@ pub fn render(view: &BridgeView) -> String {
     };
     let _ = writeln!(
         out,
-        "{autopilot}   output rate asked: {:.0} Hz   failsafe: {}",
+        "{autopilot}   output rate asked: {:.0} Hz   failsafe: {}{}",
         view.output_rate_hz,
-        if view.failsafe { "ACTIVE" } else { "no" }
+        if view.failsafe { "ACTIVE" } else { "no" },
+        signing_text(view)
     );
     let _ = writeln!(
         out,
@@ -99,4 +116,33 @@ pub fn state_text(s: &crate::runtime::ServoView) -> String {
         state.push_str(" STALLED");
     }
     state
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mavlink::signing::DropCounts;
+
+    #[test]
+    fn the_autopilot_line_shows_signing_drops_only_with_signing_on() {
+        let mut view = BridgeView::default();
+        assert!(!render(&view).contains("signed"));
+        view.signing_drops = vec![
+            DropCounts {
+                unsigned: 3,
+                bad_signature: 1,
+                old_timestamp: 0,
+            },
+            DropCounts {
+                unsigned: 2,
+                bad_signature: 0,
+                old_timestamp: 4,
+            },
+        ];
+        let first = render(&view).lines().next().unwrap_or("").to_string();
+        assert!(
+            first.ends_with("signed, dropped: 5 unsigned, 1 bad signature, 4 old timestamp"),
+            "{first}"
+        );
+    }
 }

@@ -1,0 +1,868 @@
+//! MAVLink 2 message signing (<https://mavlink.io/en/guide/message_signing.html>) for every link
+//! of the bridge: which incoming messages may reach [`super::BridgeCore`], how outgoing ones are
+//! signed, and why the signing timestamp never goes backwards, not even across a restart.
+//!
+//! The signature itself (SHA-256 over key, frame and timestamp, first 6 bytes) is the `mavlink`
+//! crate's ([`MAVLinkV2MessageRaw::calculate_signature`]). The crate's connection-level signing
+//! is not used: it drops bad messages without saying so, and its timestamp cannot be seeded
+//! from a persisted value. Here instead:
+//!
+//! - **Receiving** ([`Signing::receive`]): a MAVLink 1 or unsigned MAVLink 2 frame, a frame
+//!   whose signature does not match the key, and a frame whose timestamp is not newer than the
+//!   last one of its stream (link id, system, component) — or, for a stream not seen before,
+//!   more than one minute older than the local timestamp — is dropped and counted per link and
+//!   reason ([`DropCounts`]); a warning text is returned for the first drop of a link and then
+//!   at most every [`WARN_EVERY`]. The signature is checked before the timestamp, so "bad
+//!   signature" means a wrong key (or a corrupted frame) and "old timestamp" a replay.
+//! - **Sending** ([`Signing::sign`]): every frame is signed with the link's id (the link's
+//!   index) and a timestamp strictly greater than the previous one of any link; the bridge
+//!   numbers each link's frames itself.
+//! - **Timestamps** ([`Timestamps`]): the local timestamp is at least the wall clock (10 µs
+//!   units since 2015-01-01 UTC) and at least every accepted incoming timestamp. The timestamps
+//!   sent are moreover never below a *reservation* kept in a small file ([`TimestampFile`]):
+//!   at start the first timestamp sent is max(reservation, now) and a new reservation
+//!   [`RESERVE_AHEAD`] beyond it is written (temporary file, fsync, rename) before anything is
+//!   sent ([`Signing::open`]); whenever a timestamp comes within [`RESERVE_MARGIN`] of the
+//!   reservation, [`Signing::sign`] asks for the next, which the caller writes off the send path
+//!   (the disk may be slow) while those [`RESERVE_MARGIN`] of timestamps last. A crash leaves the
+//!   old file or the new one, and a restart — even with the clock set back — starts above every
+//!   timestamp the previous run could have sent.
+//!
+//! The local timestamp that judges new incoming streams is max(now, reservation −
+//! [`RESERVE_AHEAD`], accepted timestamps), not the reservation itself: right after a restart
+//! the bridge may send up to [`RESERVE_AHEAD`] ahead of the clock, and judging the autopilot's
+//! first messages by that would refuse an autopilot whose clock is a little behind.
+
+use mavlink::dialects::common::MavMessage;
+use mavlink::{MAVLinkMessageRaw, MAVLinkV2MessageRaw, MavHeader, Message};
+use sha2::{Digest, Sha256};
+use std::collections::HashMap;
+use std::fmt;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant, SystemTime};
+use thiserror::Error;
+
+/// The signing epoch, 2015-01-01 00:00:00 UTC, in seconds since the Unix epoch.
+pub const EPOCH_UNIX_S: u64 = 1_420_070_400;
+/// Signing timestamps count 10 µs.
+pub const TICKS_PER_SECOND: u64 = 100_000;
+/// A new incoming stream may start at most this far behind the local timestamp (one minute).
+pub const NEW_STREAM_WINDOW: u64 = 60 * TICKS_PER_SECOND;
+/// How far beyond the latest timestamp sent a reservation is written (30 s).
+pub const RESERVE_AHEAD: u64 = 30 * TICKS_PER_SECOND;
+/// A new reservation is written when a timestamp comes this close to the current one (10 s):
+/// while the bridge sends, the file is rewritten about every 20 s.
+pub const RESERVE_MARGIN: u64 = 10 * TICKS_PER_SECOND;
+/// Drops are logged at the first and then at most this often per link.
+pub const WARN_EVERY: Duration = Duration::from_secs(10);
+
+/// MAVLINK_IFLAG_SIGNED.
+const IFLAG_SIGNED: u8 = 0x01;
+
+/// The 32-byte secret key. Its `Debug` never shows the bytes.
+#[derive(Clone, PartialEq, Eq)]
+pub struct SigningKey([u8; 32]);
+
+impl fmt::Debug for SigningKey {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("SigningKey(<secret>)")
+    }
+}
+
+/// Why a key could not be read.
+#[derive(Debug, Error, PartialEq, Eq)]
+pub enum KeyError {
+    #[error(
+        "is {0} characters long; a signing key is 64 hex digits (32 bytes), e.g. the output of `openssl rand -hex 32`"
+    )]
+    HexLength(usize),
+    /// At this character (from 1); the character itself is not quoted, being part of a secret.
+    #[error("has a character that is not a hex digit (0-9, a-f) at position {0}")]
+    NotHex(usize),
+    #[error(
+        "holds {0} bytes; a key file holds 64 hex digits (surrounding white space allowed) or exactly 32 raw bytes"
+    )]
+    FileLength(usize),
+    #[error("is empty; a passphrase needs at least one character")]
+    EmptyPassphrase,
+}
+
+impl SigningKey {
+    pub const fn from_bytes(bytes: [u8; 32]) -> Self {
+        SigningKey(bytes)
+    }
+
+    pub fn bytes(&self) -> &[u8; 32] {
+        &self.0
+    }
+
+    /// 64 hex digits, either case.
+    pub fn from_hex(text: &str) -> Result<Self, KeyError> {
+        let count = text.chars().count();
+        if let Some(i) = text.chars().position(|c| !c.is_ascii_hexdigit()) {
+            return Err(KeyError::NotHex(i + 1));
+        }
+        if count != 64 {
+            return Err(KeyError::HexLength(count));
+        }
+        let mut key = [0u8; 32];
+        for (byte, pair) in key.iter_mut().zip(text.as_bytes().chunks(2)) {
+            // Both are ASCII hex digits, checked above.
+            let digits = std::str::from_utf8(pair).unwrap_or("00");
+            *byte = u8::from_str_radix(digits, 16).unwrap_or(0);
+        }
+        Ok(SigningKey(key))
+    }
+
+    /// The key MAVProxy's `signing setup <passphrase>` and `signing key <passphrase>` derive:
+    /// SHA-256 of the passphrase's bytes (MAVProxy takes ASCII passphrases only; for those the
+    /// UTF-8 bytes used here are the same).
+    pub fn from_passphrase(passphrase: &str) -> Result<Self, KeyError> {
+        if passphrase.is_empty() {
+            return Err(KeyError::EmptyPassphrase);
+        }
+        Ok(SigningKey(Sha256::digest(passphrase.as_bytes()).into()))
+    }
+
+    /// A key file's contents: 64 hex digits (white space around them allowed), or exactly 32
+    /// raw bytes.
+    pub fn from_file_contents(contents: &[u8]) -> Result<Self, KeyError> {
+        if let Ok(text) = std::str::from_utf8(contents) {
+            let text = text.trim();
+            if text.len() == 64 && text.bytes().all(|b| b.is_ascii_hexdigit()) {
+                return Self::from_hex(text);
+            }
+        }
+        match <[u8; 32]>::try_from(contents) {
+            Ok(bytes) => Ok(SigningKey(bytes)),
+            Err(_) => Err(KeyError::FileLength(contents.len())),
+        }
+    }
+}
+
+/// The signing timestamp of a wall-clock time: 10 µs units since 2015-01-01 UTC (0 before it).
+pub fn timestamp_at(time: SystemTime) -> u64 {
+    let since = time
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .unwrap_or_default()
+        .saturating_sub(Duration::from_secs(EPOCH_UNIX_S));
+    (since.as_micros() / 10) as u64
+}
+
+/// The signing timestamp of now.
+pub fn now() -> u64 {
+    timestamp_at(SystemTime::now())
+}
+
+/// Why an incoming message was dropped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DropReason {
+    /// MAVLink 1, or MAVLink 2 without a signature.
+    Unsigned,
+    /// The signature does not match the key.
+    BadSignature,
+    /// Correctly signed, but not newer than its stream's last message, or a new stream more than
+    /// a minute behind the local timestamp: a replay.
+    OldTimestamp,
+}
+
+/// The messages one link dropped, per reason, since the start.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct DropCounts {
+    pub unsigned: u64,
+    pub bad_signature: u64,
+    pub old_timestamp: u64,
+}
+
+impl DropCounts {
+    pub fn total(&self) -> u64 {
+        self.unsigned + self.bad_signature + self.old_timestamp
+    }
+
+    fn add(&mut self, reason: DropReason) {
+        let n = match reason {
+            DropReason::Unsigned => &mut self.unsigned,
+            DropReason::BadSignature => &mut self.bad_signature,
+            DropReason::OldTimestamp => &mut self.old_timestamp,
+        };
+        *n += 1;
+    }
+}
+
+/// The local timestamp, the timestamps sent and their reservation (see the module doc).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Timestamps {
+    /// Judges new incoming streams: max(now, accepted timestamps, start floor).
+    local: u64,
+    /// The least timestamp the next message sent may carry.
+    next: u64,
+    /// No timestamp at or above this has been reserved (persisted) yet.
+    reserved: u64,
+}
+
+impl Timestamps {
+    /// Start from the reservation the previous run left (`None`: first run) at wall-clock
+    /// timestamp `now`; returns the reservation to persist before anything is sent.
+    pub fn start(stored: Option<u64>, now: u64) -> (Self, u64) {
+        let stored = stored.unwrap_or(0);
+        let next = now.max(stored);
+        let reserved = next + RESERVE_AHEAD;
+        let t = Timestamps {
+            local: now.max(stored.saturating_sub(RESERVE_AHEAD)),
+            next,
+            reserved,
+        };
+        (t, reserved)
+    }
+
+    /// The local timestamp at wall-clock timestamp `now`.
+    pub fn local(&mut self, now: u64) -> u64 {
+        self.local = self.local.max(now);
+        self.local
+    }
+
+    /// A correctly signed, fresh message carried `timestamp`.
+    pub fn accepted(&mut self, timestamp: u64) {
+        self.local = self.local.max(timestamp);
+        self.next = self.next.max(timestamp);
+    }
+
+    /// The timestamp for the next message sent, and the reservation to persist before sending
+    /// it when one is due.
+    pub fn stamp(&mut self, now: u64) -> (u64, Option<u64>) {
+        let timestamp = self.local(now).max(self.next);
+        self.next = timestamp + 1;
+        let reserve = (timestamp + RESERVE_MARGIN >= self.reserved).then(|| {
+            self.reserved = timestamp + RESERVE_AHEAD;
+            self.reserved
+        });
+        (timestamp, reserve)
+    }
+}
+
+/// Why the timestamp file could not be used.
+#[derive(Debug, Error)]
+pub enum TimestampFileError {
+    #[error(
+        "cannot read the signing timestamp file {path}: {source} (set [mavlink] signing_timestamp_file to a place the bridge can read and write)"
+    )]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(
+        "the signing timestamp file {path} does not hold a timestamp ({text:?}); delete it only if the clock is right"
+    )]
+    Garbled { path: PathBuf, text: String },
+    #[error(
+        "cannot write the signing timestamp file {path}: {source} (set [mavlink] signing_timestamp_file to a writable place)"
+    )]
+    Write {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// The file that keeps the reservation: one decimal number (10 µs units since 2015-01-01 UTC)
+/// and a newline.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TimestampFile {
+    path: PathBuf,
+}
+
+impl TimestampFile {
+    pub fn new(path: impl Into<PathBuf>) -> Self {
+        TimestampFile { path: path.into() }
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The stored reservation; `None` when there is no file yet.
+    pub fn load(&self) -> Result<Option<u64>, TimestampFileError> {
+        match std::fs::read_to_string(&self.path) {
+            Ok(text) => {
+                text.trim()
+                    .parse::<u64>()
+                    .map(Some)
+                    .map_err(|_| TimestampFileError::Garbled {
+                        path: self.path.clone(),
+                        text: text.chars().take(40).collect(),
+                    })
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(source) => Err(TimestampFileError::Read {
+                path: self.path.clone(),
+                source,
+            }),
+        }
+    }
+
+    /// Replace the stored reservation: a temporary file beside it, fsync, rename over, fsync
+    /// of the folder. A power cut leaves the old number or the new one.
+    pub fn store(&self, reservation: u64) -> Result<(), TimestampFileError> {
+        let write = || -> std::io::Result<()> {
+            let dir = match self.path.parent() {
+                Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+                _ => PathBuf::from("."),
+            };
+            std::fs::create_dir_all(&dir)?;
+            let mut tmp_name = self.path.file_name().unwrap_or_default().to_os_string();
+            tmp_name.push(".tmp");
+            let tmp = dir.join(tmp_name);
+            let mut f = std::fs::File::create(&tmp)?;
+            writeln!(f, "{reservation}")?;
+            f.sync_all()?;
+            drop(f);
+            std::fs::rename(&tmp, &self.path)?;
+            // The rename itself is durable once the folder is.
+            if let Ok(d) = std::fs::File::open(&dir) {
+                let _ = d.sync_all();
+            }
+            Ok(())
+        };
+        write().map_err(|source| TimestampFileError::Write {
+            path: self.path.clone(),
+            source,
+        })
+    }
+}
+
+/// What [`Signing::receive`] made of a frame.
+#[derive(Debug, Clone)]
+// Returned once per frame and taken apart at once: boxing would allocate for every message.
+#[allow(clippy::large_enum_variant)]
+pub enum Incoming {
+    /// Correctly signed and fresh: for [`super::BridgeCore`].
+    Message(MavHeader, MavMessage),
+    /// Correctly signed and fresh, but not a message of the dialect.
+    Unknown,
+    /// Dropped; `warning` is the log line due now, if any.
+    Dropped {
+        reason: DropReason,
+        warning: Option<String>,
+    },
+}
+
+/// One link's sequence numbers and drops.
+#[derive(Debug, Default)]
+struct LinkState {
+    sequence: u8,
+    drops: DropCounts,
+    warned_at: Option<Instant>,
+}
+
+/// Signing for all the bridge's links (index = the link's index = its signature link id).
+#[derive(Debug)]
+pub struct Signing {
+    key: SigningKey,
+    timestamps: Timestamps,
+    /// The last accepted timestamp per (our link, their link id, system, component).
+    streams: HashMap<(usize, u8, u32, u8), u64>,
+    links: Vec<LinkState>,
+}
+
+impl Signing {
+    /// Signing for `links` links with `key`, from the reservation the previous run left
+    /// (`stored`, `None`: none) at wall-clock timestamp `now`; returns the reservation to
+    /// persist before anything is sent.
+    pub fn new(key: SigningKey, links: usize, stored: Option<u64>, now: u64) -> (Self, u64) {
+        let (timestamps, reservation) = Timestamps::start(stored, now);
+        let signing = Signing {
+            key,
+            timestamps,
+            streams: HashMap::new(),
+            links: (0..links).map(|_| LinkState::default()).collect(),
+        };
+        (signing, reservation)
+    }
+
+    /// [`Signing::new`] from the reservation in `file`, the first one of this run written
+    /// there before returning.
+    pub fn open(
+        key: SigningKey,
+        links: usize,
+        file: &TimestampFile,
+        now: u64,
+    ) -> Result<Self, TimestampFileError> {
+        let (signing, reservation) = Self::new(key, links, file.load()?, now);
+        file.store(reservation)?;
+        Ok(signing)
+    }
+
+    /// Each link's drops so far.
+    pub fn drops(&self) -> Vec<DropCounts> {
+        self.links.iter().map(|l| l.drops).collect()
+    }
+
+    /// Check a frame that arrived on `link` at wall-clock timestamp `now` (monotonic `at`, for
+    /// the warnings' rate).
+    pub fn receive(
+        &mut self,
+        link: usize,
+        raw: &MAVLinkMessageRaw,
+        now: u64,
+        at: Instant,
+    ) -> Incoming {
+        match self.verify(link, raw, now) {
+            Ok(()) => match MavMessage::parse(raw.version(), raw.message_id(), raw.payload()) {
+                Ok(message) => Incoming::Message(
+                    MavHeader {
+                        system_id: raw.system_id(),
+                        component_id: raw.component_id(),
+                        sequence: raw.sequence(),
+                    },
+                    message,
+                ),
+                Err(_) => Incoming::Unknown,
+            },
+            Err(reason) => {
+                let warning = self.drop(link, reason, at);
+                Incoming::Dropped { reason, warning }
+            }
+        }
+    }
+
+    fn verify(&mut self, link: usize, raw: &MAVLinkMessageRaw, now: u64) -> Result<(), DropReason> {
+        let MAVLinkMessageRaw::V2(frame) = raw else {
+            return Err(DropReason::Unsigned);
+        };
+        if frame.incompatibility_flags() & IFLAG_SIGNED == 0 {
+            return Err(DropReason::Unsigned);
+        }
+        let mut signature = [0u8; 6];
+        frame.calculate_signature(self.key.bytes(), &mut signature);
+        if signature != frame.signature_value() {
+            return Err(DropReason::BadSignature);
+        }
+        let timestamp = frame.signature_timestamp();
+        let stream = (
+            link,
+            frame.signature_link_id(),
+            frame.system_id(),
+            frame.component_id(),
+        );
+        let local = self.timestamps.local(now);
+        let fresh = match self.streams.get(&stream) {
+            Some(last) => timestamp > *last,
+            None => timestamp + NEW_STREAM_WINDOW >= local,
+        };
+        if !fresh {
+            return Err(DropReason::OldTimestamp);
+        }
+        self.streams.insert(stream, timestamp);
+        self.timestamps.accepted(timestamp);
+        Ok(())
+    }
+
+    /// Count a drop; the warning due now, if any.
+    fn drop(&mut self, link: usize, reason: DropReason, at: Instant) -> Option<String> {
+        let state = self.links.get_mut(link)?;
+        state.drops.add(reason);
+        if state
+            .warned_at
+            .is_some_and(|t| at.saturating_duration_since(t) < WARN_EVERY)
+        {
+            return None;
+        }
+        state.warned_at = Some(at);
+        let d = state.drops;
+        Some(format!(
+            "MAVLink link {link}: signing is on and messages are being dropped ({} unsigned, {} with a bad signature, {} with an old timestamp since the start); check that the sender signs with this mapping's key",
+            d.unsigned, d.bad_signature, d.old_timestamp
+        ))
+    }
+
+    /// `message` from `header`'s system and component, signed for `link` at wall-clock
+    /// timestamp `now`, with the link's next sequence number; and the reservation to persist
+    /// when one is due. The caller writes it away from the send path ([`TimestampFile::store`]
+    /// may wait for the disk): the timestamps sent reach the previous reservation only
+    /// [`RESERVE_MARGIN`] later.
+    pub fn sign(
+        &mut self,
+        link: usize,
+        header: MavHeader,
+        message: &MavMessage,
+        now: u64,
+    ) -> (MAVLinkMessageRaw, Option<u64>) {
+        let sequence = match self.links.get_mut(link) {
+            Some(state) => {
+                let s = state.sequence;
+                state.sequence = s.wrapping_add(1);
+                s
+            }
+            None => 0,
+        };
+        let (timestamp, reserve) = self.timestamps.stamp(now);
+        let mut frame = MAVLinkV2MessageRaw::new();
+        frame.serialize_message_for_signing(MavHeader { sequence, ..header }, message);
+        *frame.signature_link_id_mut() = u8::try_from(link).unwrap_or(u8::MAX);
+        frame
+            .signature_timestamp_bytes_mut()
+            .copy_from_slice(&timestamp.to_le_bytes()[..6]);
+        let mut signature = [0u8; 6];
+        frame.calculate_signature(self.key.bytes(), &mut signature);
+        frame.signature_value_mut().copy_from_slice(&signature);
+        (MAVLinkMessageRaw::V2(frame), reserve)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mavlink::dialects::common::{HEARTBEAT_DATA, SERVO_OUTPUT_RAW_DATA};
+
+    const KEY: SigningKey = SigningKey::from_bytes([7; 32]);
+
+    fn header() -> MavHeader {
+        MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: 0,
+        }
+    }
+
+    fn outputs() -> MavMessage {
+        MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
+            servo1_raw: 1600,
+            ..Default::default()
+        })
+    }
+
+    /// A start in 2026.
+    const T0: u64 = 11 * 365 * 86_400 * TICKS_PER_SECOND;
+
+    fn signing(key: SigningKey) -> Signing {
+        Signing::new(key, 2, None, T0).0
+    }
+
+    fn receive(
+        s: &mut Signing,
+        raw: &MAVLinkMessageRaw,
+        now: u64,
+    ) -> Result<MavMessage, DropReason> {
+        match s.receive(0, raw, now, Instant::now()) {
+            Incoming::Message(_, m) => Ok(m),
+            Incoming::Unknown => panic!("unknown"),
+            Incoming::Dropped { reason, .. } => Err(reason),
+        }
+    }
+
+    fn unique_dir(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("lj9da-signing-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn a_signed_message_verifies_and_parses() {
+        let mut sender = signing(KEY);
+        let mut receiver = signing(KEY);
+        let (raw, _) = sender.sign(1, header(), &outputs(), T0);
+        let MAVLinkMessageRaw::V2(frame) = &raw else {
+            panic!("MAVLink 2")
+        };
+        assert_eq!(frame.incompatibility_flags() & IFLAG_SIGNED, IFLAG_SIGNED);
+        assert_eq!(frame.signature_link_id(), 1);
+        match receiver.receive(0, &raw, T0, Instant::now()) {
+            Incoming::Message(h, m) => {
+                assert_eq!((h.system_id, h.component_id), (1, 1));
+                assert_eq!(m, outputs());
+            }
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(receiver.drops()[0], DropCounts::default());
+    }
+
+    #[test]
+    fn a_message_signed_with_another_key_is_dropped_as_bad_signature() {
+        let mut sender = signing(SigningKey::from_bytes([8; 32]));
+        let mut receiver = signing(KEY);
+        let (raw, _) = sender.sign(0, header(), &outputs(), T0);
+        assert_eq!(
+            receive(&mut receiver, &raw, T0),
+            Err(DropReason::BadSignature)
+        );
+        // A corrupted signature as well.
+        let (mut raw, _) = signing(KEY).sign(0, header(), &outputs(), T0);
+        if let MAVLinkMessageRaw::V2(f) = &mut raw {
+            f.signature_value_mut()[0] ^= 1;
+        }
+        assert_eq!(
+            receive(&mut receiver, &raw, T0),
+            Err(DropReason::BadSignature)
+        );
+        assert_eq!(receiver.drops()[0].bad_signature, 2);
+    }
+
+    #[test]
+    fn unsigned_messages_of_either_version_are_dropped() {
+        let mut receiver = signing(KEY);
+        let mut v2 = MAVLinkV2MessageRaw::new();
+        v2.serialize_message(header(), &outputs());
+        assert_eq!(
+            receive(&mut receiver, &MAVLinkMessageRaw::V2(v2), T0),
+            Err(DropReason::Unsigned)
+        );
+        let mut v1 = mavlink::MAVLinkV1MessageRaw::new();
+        v1.serialize_message(header(), &outputs());
+        assert_eq!(
+            receive(&mut receiver, &MAVLinkMessageRaw::V1(v1), T0),
+            Err(DropReason::Unsigned)
+        );
+        assert_eq!(receiver.drops()[0].unsigned, 2);
+    }
+
+    #[test]
+    fn a_replayed_message_is_dropped_as_old() {
+        let mut sender = signing(KEY);
+        let mut receiver = signing(KEY);
+        let (first, _) = sender.sign(0, header(), &outputs(), T0);
+        let (second, _) = sender.sign(0, header(), &outputs(), T0);
+        assert!(receive(&mut receiver, &first, T0).is_ok());
+        assert!(receive(&mut receiver, &second, T0).is_ok());
+        assert_eq!(
+            receive(&mut receiver, &second, T0),
+            Err(DropReason::OldTimestamp)
+        );
+        assert_eq!(
+            receive(&mut receiver, &first, T0),
+            Err(DropReason::OldTimestamp)
+        );
+        // Another component's stream is its own.
+        let (other, _) = sender.sign(
+            0,
+            MavHeader {
+                component_id: 2,
+                ..header()
+            },
+            &outputs(),
+            T0,
+        );
+        assert!(receive(&mut receiver, &other, T0).is_ok());
+    }
+
+    #[test]
+    fn a_new_stream_more_than_a_minute_behind_is_dropped() {
+        let sent_at = |t: u64| {
+            Signing::new(KEY, 1, None, t)
+                .0
+                .sign(0, header(), &outputs(), t)
+                .0
+        };
+        let minute = NEW_STREAM_WINDOW;
+        let mut receiver = signing(KEY);
+        let old = sent_at(T0 - minute - 1);
+        assert_eq!(
+            receive(&mut receiver, &old, T0),
+            Err(DropReason::OldTimestamp)
+        );
+        assert!(receive(&mut receiver, &sent_at(T0 - minute + 100), T0).is_ok());
+    }
+
+    #[test]
+    fn sent_timestamps_strictly_increase_across_links_even_at_one_instant() {
+        let mut s = signing(KEY);
+        let mut last = 0;
+        for i in 0..1000 {
+            let (raw, _) = s.sign(i % 2, header(), &outputs(), T0);
+            let MAVLinkMessageRaw::V2(f) = raw else {
+                panic!()
+            };
+            assert!(f.signature_timestamp() > last);
+            last = f.signature_timestamp();
+        }
+        // A clock that goes back changes nothing.
+        let (raw, _) = s.sign(0, header(), &outputs(), T0 - 1_000_000);
+        let MAVLinkMessageRaw::V2(f) = raw else {
+            panic!()
+        };
+        assert!(f.signature_timestamp() > last);
+    }
+
+    #[test]
+    fn each_link_numbers_its_own_frames() {
+        let mut s = signing(KEY);
+        let seqs: Vec<(usize, u8)> = [0, 0, 1, 0, 1]
+            .into_iter()
+            .map(|link| {
+                let (raw, _) = s.sign(link, header(), &outputs(), T0);
+                (link, raw.sequence())
+            })
+            .collect();
+        assert_eq!(seqs, [(0, 0), (0, 1), (1, 0), (0, 2), (1, 1)]);
+    }
+
+    fn stamp_of(raw: &MAVLinkMessageRaw) -> u64 {
+        match raw {
+            MAVLinkMessageRaw::V2(f) => f.signature_timestamp(),
+            MAVLinkMessageRaw::V1(_) => panic!(),
+        }
+    }
+
+    #[test]
+    fn a_restart_with_the_clock_set_back_still_sends_later_timestamps() {
+        let dir = unique_dir("restart");
+        let file = TimestampFile::new(dir.join("plane.toml.signing-timestamp"));
+        // As the bridge runs: each reservation due is written (there, on another task).
+        let send = |s: &mut Signing, now: u64| {
+            let (raw, reserve) = s.sign(0, header(), &outputs(), now);
+            if let Some(r) = reserve {
+                file.store(r).unwrap();
+            }
+            stamp_of(&raw)
+        };
+        let mut first = Signing::open(KEY, 1, &file, T0).unwrap();
+        let mut last = 0;
+        // A minute and a half of sending at 100 Hz: several reservations.
+        for i in 0..9000 {
+            last = send(&mut first, T0 + i * 1000);
+        }
+        let stored = file.load().unwrap().unwrap();
+        assert!(
+            stored >= last + RESERVE_MARGIN,
+            "the reservation covers what was sent"
+        );
+        // Killed (no goodbye), restarted with the clock an hour back.
+        drop(first);
+        let back = T0 - 3600 * TICKS_PER_SECOND;
+        let mut second = Signing::open(KEY, 1, &file, back).unwrap();
+        let (raw, _) = second.sign(0, header(), &outputs(), back);
+        assert!(stamp_of(&raw) > last);
+        // A receiver that saw the first run accepts the second run's messages.
+        let mut receiver = signing(KEY);
+        let (raw1, _) = Signing::new(KEY, 1, None, T0)
+            .0
+            .sign(0, header(), &outputs(), T0);
+        assert!(receive(&mut receiver, &raw1, T0).is_ok());
+        assert!(receive(&mut receiver, &raw, T0).is_ok());
+        // A third start (the clock still back) is above the second's timestamps too.
+        let second_last = send(&mut second, back);
+        drop(second);
+        let mut third = Signing::open(KEY, 1, &file, back).unwrap();
+        assert!(send(&mut third, back) > second_last);
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[test]
+    fn signing_does_not_open_where_its_timestamps_cannot_be_kept() {
+        // A folder that cannot exist: a path under a regular file.
+        let dir = unique_dir("unwritable");
+        std::fs::write(dir.join("file"), "").unwrap();
+        let file = TimestampFile::new(dir.join("file/ts"));
+        let e = Signing::open(KEY, 1, &file, T0).expect_err("no place for the file");
+        assert!(
+            matches!(
+                e,
+                TimestampFileError::Read { .. } | TimestampFileError::Write { .. }
+            ),
+            "{e}"
+        );
+        assert!(e.to_string().contains("signing_timestamp_file"), "{e}");
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[test]
+    fn a_crash_between_writing_and_renaming_leaves_the_previous_reservation() {
+        let dir = unique_dir("torn");
+        let file = TimestampFile::new(dir.join("t"));
+        file.store(123_456).unwrap();
+        // A temporary file left half-written by a power cut is not read.
+        std::fs::write(dir.join("t.tmp"), "99").unwrap();
+        assert_eq!(file.load().unwrap(), Some(123_456));
+        file.store(200_000).unwrap();
+        assert_eq!(file.load().unwrap(), Some(200_000));
+        std::fs::write(dir.join("t"), "garbage").unwrap();
+        assert!(matches!(
+            file.load(),
+            Err(TimestampFileError::Garbled { .. })
+        ));
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[test]
+    fn the_local_timestamp_after_a_restart_does_not_refuse_a_peer_at_the_right_time() {
+        // The previous run reserved up to now + 30 s; a peer whose clock is 50 s behind ours
+        // still starts a stream.
+        let (mut t, _) = Timestamps::start(Some(T0 + RESERVE_AHEAD), T0);
+        assert!(T0 - 50 * TICKS_PER_SECOND + NEW_STREAM_WINDOW >= t.local(T0));
+        // What is sent is above the reservation.
+        assert!(t.stamp(T0).0 >= T0 + RESERVE_AHEAD);
+    }
+
+    #[test]
+    fn drops_warn_at_the_first_then_at_most_every_ten_seconds() {
+        let mut s = signing(KEY);
+        let mut v2 = MAVLinkV2MessageRaw::new();
+        v2.serialize_message(header(), &MavMessage::HEARTBEAT(HEARTBEAT_DATA::default()));
+        let raw = MAVLinkMessageRaw::V2(v2);
+        let t0 = Instant::now();
+        let warn = |s: &mut Signing, after: u64| match s.receive(
+            1,
+            &raw,
+            T0,
+            t0 + Duration::from_millis(after),
+        ) {
+            Incoming::Dropped { warning, .. } => warning,
+            other => panic!("{other:?}"),
+        };
+        assert!(warn(&mut s, 0).unwrap().contains("1 unsigned"));
+        assert_eq!(warn(&mut s, 5_000), None);
+        assert_eq!(warn(&mut s, 9_999), None);
+        let w = warn(&mut s, 10_000).unwrap();
+        assert!(w.contains("link 1") && w.contains("4 unsigned"), "{w}");
+        assert_eq!(s.drops()[1].unsigned, 4);
+        assert_eq!(s.drops()[0], DropCounts::default());
+    }
+
+    #[test]
+    fn keys_come_from_hex_a_file_or_a_passphrase() {
+        let hex = "00112233445566778899aabbccddeeff00112233445566778899AABBCCDDEEFF";
+        let key = SigningKey::from_hex(hex).unwrap();
+        assert_eq!(key.bytes()[..3], [0x00, 0x11, 0x22]);
+        assert_eq!(key.bytes()[31], 0xff);
+        assert_eq!(
+            SigningKey::from_hex(&hex[..62]),
+            Err(KeyError::HexLength(62))
+        );
+        assert_eq!(
+            SigningKey::from_hex(&format!("{}g", &hex[..63])),
+            Err(KeyError::NotHex(64))
+        );
+        assert_eq!(
+            SigningKey::from_file_contents(format!("  {hex}\n").as_bytes()),
+            Ok(key.clone())
+        );
+        assert_eq!(SigningKey::from_file_contents(key.bytes()), Ok(key.clone()));
+        assert_eq!(
+            SigningKey::from_file_contents(b"short"),
+            Err(KeyError::FileLength(5))
+        );
+        // hashlib.sha256(b"correct horse battery staple").hexdigest(), as MAVProxy derives it.
+        let passphrase = SigningKey::from_passphrase("correct horse battery staple").unwrap();
+        assert_eq!(
+            passphrase,
+            SigningKey::from_hex(
+                "c4bbcb1fbec99d65bf59d85c8cb62ee2db963f0fe106f483d9afa73bd4e39a8a"
+            )
+            .unwrap()
+        );
+        assert_eq!(
+            SigningKey::from_passphrase(""),
+            Err(KeyError::EmptyPassphrase)
+        );
+        assert_eq!(format!("{key:?}"), "SigningKey(<secret>)");
+    }
+
+    #[test]
+    fn timestamps_count_10_us_since_2015() {
+        let t = SystemTime::UNIX_EPOCH + Duration::from_secs(EPOCH_UNIX_S + 2);
+        assert_eq!(timestamp_at(t), 200_000);
+        assert_eq!(timestamp_at(SystemTime::UNIX_EPOCH), 0);
+    }
+}

@@ -1,0 +1,487 @@
+//! MAVLink 2 signing against a third-party implementation: pymavlink with `setup_signing`, over
+//! real UDP sockets, plays the autopilot and the ground station of a bridge whose mapping has a
+//! signing key (simulated servos on pseudo-terminals behind it).
+//!
+//! - A signed autopilot's outputs move the servos, and it accepts the bridge's signed messages.
+//! - An unsigned autopilot, and one signing with another key, move nothing: every message is
+//!   dropped and counted per reason in the bridge's view.
+//! - A signed ground station sees the bridge's HEARTBEAT and telemetry, verified by pymavlink,
+//!   and its commands are answered; one with another key sees nothing from the bridge and its
+//!   commands are dropped; an unsigned one hears the bridge but its commands are dropped too.
+//! - A mapping's `signing_passphrase` is the key MAVProxy's `signing setup` derives.
+//! - A restart with the clock behind the stored timestamp reservation signs above it.
+//!
+//! The Python environment: `$LJ9DA_PYTHON` if set (`.ci/run` sets it), else a virtual
+//! environment made once under the target directory with `pip install pymavlink`.
+
+mod common;
+
+use common::{Chain, ChainOptions, free_udp_port};
+use lj9da_bridge::runtime::BridgeView;
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::Duration;
+
+const KEY_HEX: &str = "5e1f0a2b3c4d5e6f708192a3b4c5d6e7f8091a2b3c4d5e6f708192a3b4c5d6e7";
+const OTHER_KEY_HEX: &str = "0000000000000000000000000000000000000000000000000000000000000001";
+const PASSPHRASE: &str = "flaps and ailerons";
+
+/// What the autopilot script's 1900 µs on channel 1 means with the default PWM range (920/1520/2120
+/// µs ↔ −25/0/+25 mm): +15.83 mm.
+const COMMANDED_MM: f64 = 25.0 * (1900.0 - 1520.0) / 600.0;
+
+/// A mapping signed with `signing` (a `signing_*` line), its timestamp file under the target's
+/// temporary folder. The vehicle's system id is set, so that the bridge sends its HEARTBEAT
+/// before it has accepted one from the autopilot.
+fn mapping(signing: &str, name: &str) -> (String, PathBuf) {
+    let ts = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!(
+        "signing-{name}-{}.signing-timestamp",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_file(&ts);
+    let text = format!(
+        r#"
+[mavlink]
+connection = "udpin:127.0.0.1:14560"
+system_id = 1
+output_rate_hz = 20
+{signing}
+signing_timestamp_file = "{}"
+
+[telemetry]
+rate_hz = 10
+
+[[bus]]
+name = "wing"
+port = "sim"
+turnaround_ms = 20
+
+[[servo]]
+name = "aileron_left"
+label = "ail_l"
+bus = "wing"
+id = 1
+channel = 1
+
+[[servo]]
+name = "rudder"
+bus = "wing"
+id = 2
+channel = 4
+"#,
+        ts.display()
+    );
+    (text, ts)
+}
+
+fn keyed(name: &str) -> (String, PathBuf) {
+    mapping(&format!("signing_key = \"{KEY_HEX}\""), name)
+}
+
+fn python() -> PathBuf {
+    if let Some(p) = std::env::var_os("LJ9DA_PYTHON") {
+        return PathBuf::from(p);
+    }
+    let venv = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("pymavlink-venv");
+    let python = venv.join("bin/python");
+    let ready = python.exists()
+        && Command::new(&python)
+            .args(["-c", "import pymavlink"])
+            .status()
+            .is_ok_and(|s| s.success());
+    if !ready {
+        let made = Command::new("python3")
+            .args(["-m", "venv"])
+            .arg(&venv)
+            .status();
+        assert!(
+            made.is_ok_and(|s| s.success()),
+            "python3 -m venv failed: install Python 3 with venv"
+        );
+        let pip = Command::new(venv.join("bin/pip"))
+            .args(["install", "--quiet", "pymavlink"])
+            .status();
+        assert!(
+            pip.is_ok_and(|s| s.success()),
+            "pip install pymavlink failed (needs PyPI)"
+        );
+    }
+    python
+}
+
+/// Run the pymavlink `script` with `args` (at most 60 s) and return what it printed.
+async fn run_script(script: &'static str, args: Vec<String>, what: &str) -> String {
+    let python = tokio::task::spawn_blocking(python).await.unwrap();
+    let run = tokio::task::spawn_blocking(move || {
+        Command::new(&python)
+            .arg("-c")
+            .arg(script)
+            .args(&args)
+            .output()
+    });
+    let out = tokio::time::timeout(Duration::from_secs(60), run)
+        .await
+        .unwrap_or_else(|_| panic!("pymavlink {what} did not finish in 60 s"))
+        .unwrap()
+        .unwrap_or_else(|e| panic!("pymavlink {what} did not run: {e}"));
+    assert!(
+        out.status.success(),
+        "{what} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The value after `name` on the line starting with it.
+fn value(stdout: &str, name: &str) -> u64 {
+    stdout
+        .lines()
+        .find_map(|l| l.strip_prefix(&format!("{name} ")))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no {name} in {stdout}"))
+}
+
+/// Sets up signing the way MAVProxy does: the key from hex (`key <hex>`), from a passphrase
+/// (`passphrase <text>`, MAVProxy's `passphrase_to_key`), or none (`none`); unsigned messages are
+/// refused (`allow_unsigned_callback` returning False).
+const SIGNING_SETUP: &str = r#"
+import hashlib, os, sys, time
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil
+
+def setup(m, form, secret):
+    if form == "none":
+        return
+    if form == "passphrase":
+        # MAVProxy's passphrase_to_key (modules/mavproxy_signing.py).
+        key = hashlib.sha256(secret.encode("ascii")).digest()
+    else:
+        key = bytes.fromhex(secret)
+    m.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=lambda *args: False)
+
+def stats(m):
+    s = m.mav.signing
+    print("goodsig", s.goodsig_count)
+    print("badsig", s.badsig_count)
+    print("reject", s.reject_count)
+"#;
+
+/// An autopilot (system 1, component 1) on the bridge's `udpin`: HEARTBEAT at 2 Hz and
+/// SERVO_OUTPUT_RAW at 20 Hz with channel 1 at 1900 µs for `seconds`; it counts the bridge's
+/// HEARTBEATs that its signing check let through.
+const AUTOPILOT: &str = r#"
+port, seconds, form, secret = int(sys.argv[1]), float(sys.argv[2]), sys.argv[3], sys.argv[4]
+m = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", dialect="common", source_system=1, source_component=1)
+setup(m, form, secret)
+mav = mavutil.mavlink
+bridge_heartbeats, sent = 0, 0
+end, next_hb = time.time() + seconds, 0.0
+while time.time() < end:
+    now = time.time()
+    if now >= next_hb:
+        m.mav.heartbeat_send(mav.MAV_TYPE_FIXED_WING, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, mav.MAV_STATE_ACTIVE)
+        next_hb = now + 0.5
+    m.mav.servo_output_raw_send(int(now * 1e6) & 0xFFFFFFFF, 0, 1900, 1500, 1500, 1500, 0, 0, 0, 0)
+    sent += 1
+    deadline = now + 0.05
+    while True:
+        left = deadline - time.time()
+        if left <= 0:
+            break
+        msg = m.recv_match(blocking=True, timeout=left)
+        if msg is not None and msg.get_type() == "HEARTBEAT" and msg.get_srcComponent() == 140:
+            bridge_heartbeats += 1
+print("sent", sent)
+print("bridge_heartbeats", bridge_heartbeats)
+# The latest signature timestamp accepted from the bridge (pymavlink keeps one per stream).
+stamps = [t for (link, system, component), t in m.mav.signing.stream_timestamps.items() if component == 140]
+print("bridge_timestamp", max(stamps) if stamps else 0)
+stats(m)
+"#;
+
+/// A ground station on the bridge's `gcs` output: it waits for the bridge's HEARTBEAT, sends it
+/// MAV_CMD_DO_SET_SERVO until acknowledged (or `seconds` pass), and counts what it accepted.
+const GROUND_STATION: &str = r#"
+port, seconds, form, secret = int(sys.argv[1]), float(sys.argv[2]), sys.argv[3], sys.argv[4]
+m = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="common", source_system=255, source_component=190)
+setup(m, form, secret)
+mav = mavutil.mavlink
+heartbeats, names, acks, commands = 0, set(), 0, 0
+end, next_command = time.time() + seconds, 0.0
+while time.time() < end:
+    msg = m.recv_match(blocking=True, timeout=0.1)
+    now = time.time()
+    # The bridge's address is known once anything arrived, accepted or not.
+    if getattr(m, "clients", None) or getattr(m, "last_address", None) is not None:
+        if now >= next_command and acks == 0:
+            m.mav.command_long_send(1, 140, mav.MAV_CMD_DO_SET_SERVO, 0, 1, 1600, 0, 0, 0, 0, 0)
+            commands += 1
+            next_command = now + 0.5
+    if msg is None or msg.get_type() == "BAD_DATA" or msg.get_srcComponent() != 140:
+        continue
+    t = msg.get_type()
+    if t == "HEARTBEAT":
+        heartbeats += 1
+    elif t == "NAMED_VALUE_FLOAT":
+        names.add(msg.name)
+    elif t == "COMMAND_ACK" and msg.command == mav.MAV_CMD_DO_SET_SERVO:
+        acks += 1
+print("heartbeats", heartbeats)
+print("named_values", len(names))
+print("commands", commands)
+print("acks", acks)
+stats(m)
+"#;
+
+fn script(body: &'static str) -> &'static str {
+    Box::leak(format!("{SIGNING_SETUP}{body}").into_boxed_str())
+}
+
+/// The bridge with the test playing the autopilot through pymavlink for `seconds`, signing as
+/// `form`/`secret` say; returns the script's output and the bridge's view at the end.
+async fn autopilot_run(
+    mapping: &str,
+    seconds: &str,
+    form: &str,
+    secret: &str,
+) -> (String, BridgeView, Chain) {
+    let chain = Chain::start_opts(mapping, ChainOptions::default()).await;
+    let args = vec![
+        chain.autopilot_port.to_string(),
+        seconds.to_string(),
+        form.to_string(),
+        secret.to_string(),
+    ];
+    let stdout = run_script(script(AUTOPILOT), args, "autopilot").await;
+    let view = chain.view.borrow().clone();
+    (stdout, view, chain)
+}
+
+/// No servo was given a goal (none is, before the first accepted output).
+fn no_goal(view: &BridgeView) -> bool {
+    view.servos.iter().all(|s| s.goal_mm.is_none()) && !commanded(view)
+}
+
+fn commanded(view: &BridgeView) -> bool {
+    view.servos
+        .iter()
+        .any(|s| s.goal_mm.is_some_and(|g| (g - COMMANDED_MM).abs() < 0.3))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_signed_autopilot_moves_the_servos_and_verifies_the_bridge() {
+    let (text, ts) = keyed("signed-autopilot");
+    let chain = Chain::start_opts(&text, ChainOptions::default()).await;
+    let args = vec![
+        chain.autopilot_port.to_string(),
+        "6".into(),
+        "key".into(),
+        KEY_HEX.into(),
+    ];
+    let script_run = tokio::spawn(run_script(script(AUTOPILOT), args, "autopilot"));
+    chain
+        .wait_view(
+            "the signed outputs to set a goal",
+            Duration::from_secs(30),
+            |v| v.autopilot == Some((1, 1)) && commanded(v),
+        )
+        .await;
+    let stdout = script_run.await.unwrap();
+    let view = chain.view.borrow().clone();
+    assert_eq!(view.signing_drops.len(), 2, "{view:?}");
+    assert_eq!(view.signing_drops[0].total(), 0, "{view:?}");
+    // pymavlink accepted the bridge's HEARTBEATs with their signatures, and refused nothing.
+    assert!(value(&stdout, "bridge_heartbeats") >= 1, "{stdout}");
+    assert!(value(&stdout, "goodsig") >= 1, "{stdout}");
+    assert_eq!(value(&stdout, "badsig"), 0, "{stdout}");
+    assert_eq!(value(&stdout, "reject"), 0, "{stdout}");
+    chain.stop().await;
+    let reserved: u64 = std::fs::read_to_string(&ts)
+        .expect("the timestamp file is written")
+        .trim()
+        .parse()
+        .unwrap();
+    assert!(reserved > lj9da_bridge::mavlink::signing::now());
+    let _ = std::fs::remove_file(ts);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_unsigned_autopilot_moves_nothing_and_is_counted() {
+    let (text, ts) = keyed("unsigned-autopilot");
+    let (stdout, _, chain) = autopilot_run(&text, "3", "none", "-").await;
+    let sent = value(&stdout, "sent");
+    assert!(sent >= 10, "{stdout}");
+    // The outputs and heartbeats are counted (at least half of them: UDP on a busy machine, and
+    // the first datagrams may come before the bridge listens).
+    chain
+        .wait_view("the drops to be counted", Duration::from_secs(10), |v| {
+            v.signing_drops
+                .first()
+                .is_some_and(|d| d.unsigned >= sent / 2)
+        })
+        .await;
+    let view = chain.view.borrow().clone();
+    assert!(no_goal(&view), "an unsigned output moved a servo: {view:?}");
+    let d = view.signing_drops[0];
+    assert_eq!((d.bad_signature, d.old_timestamp), (0, 0), "{d:?}");
+    // The bridge's own messages still went out (pymavlink without a key ignores signatures).
+    assert!(value(&stdout, "bridge_heartbeats") >= 1, "{stdout}");
+    chain.stop().await;
+    let _ = std::fs::remove_file(ts);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_autopilot_with_another_key_moves_nothing_and_is_counted() {
+    let (text, ts) = keyed("wrong-key-autopilot");
+    let (stdout, _, chain) = autopilot_run(&text, "3", "key", OTHER_KEY_HEX).await;
+    let sent = value(&stdout, "sent");
+    chain
+        .wait_view("the drops to be counted", Duration::from_secs(10), |v| {
+            v.signing_drops
+                .first()
+                .is_some_and(|d| d.bad_signature >= sent / 2)
+        })
+        .await;
+    let view = chain.view.borrow().clone();
+    assert!(
+        no_goal(&view),
+        "a wrongly signed output moved a servo: {view:?}"
+    );
+    assert_eq!(view.signing_drops[0].unsigned, 0, "{view:?}");
+    // And the autopilot with the other key refused every message of the bridge.
+    assert_eq!(value(&stdout, "bridge_heartbeats"), 0, "{stdout}");
+    assert!(value(&stdout, "badsig") >= 1, "{stdout}");
+    chain.stop().await;
+    let _ = std::fs::remove_file(ts);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_passphrase_is_the_key_mavproxy_derives() {
+    let (text, ts) = mapping(
+        &format!("signing_passphrase = \"{PASSPHRASE}\""),
+        "passphrase",
+    );
+    let chain = Chain::start_opts(&text, ChainOptions::default()).await;
+    let args = vec![
+        chain.autopilot_port.to_string(),
+        "6".into(),
+        "passphrase".into(),
+        PASSPHRASE.into(),
+    ];
+    let script_run = tokio::spawn(run_script(script(AUTOPILOT), args, "autopilot"));
+    chain
+        .wait_view(
+            "outputs signed with the passphrase's key",
+            Duration::from_secs(30),
+            commanded,
+        )
+        .await;
+    let stdout = script_run.await.unwrap();
+    assert!(value(&stdout, "bridge_heartbeats") >= 1, "{stdout}");
+    assert_eq!(value(&stdout, "badsig"), 0, "{stdout}");
+    assert_eq!(chain.view.borrow().signing_drops[0].total(), 0);
+    chain.stop().await;
+    let _ = std::fs::remove_file(ts);
+}
+
+/// The bridge with the simulated autopilot (signing with the mapping's key, as `sitl` runs it)
+/// and pymavlink as the ground station for `seconds`.
+async fn ground_station_run(form: &str, secret: &str, name: &str) -> (String, BridgeView) {
+    let (text, ts) = keyed(name);
+    let port = free_udp_port();
+    let chain = Chain::start_with(&text, true, Some(port)).await;
+    let args = vec![
+        port.to_string(),
+        "6".into(),
+        form.to_string(),
+        secret.to_string(),
+    ];
+    let stdout = run_script(script(GROUND_STATION), args, "ground station").await;
+    // The simulated autopilot signs with the mapping's key: its outputs are obeyed.
+    chain
+        .wait_view(
+            "the simulated autopilot's outputs",
+            Duration::from_secs(20),
+            |v| v.autopilot == Some((1, 1)) && v.servos.iter().all(|s| s.goal_mm.is_some()),
+        )
+        .await;
+    assert_eq!(chain.view.borrow().signing_drops[0].total(), 0);
+    let view = chain.view.borrow().clone();
+    chain.stop().await;
+    let _ = std::fs::remove_file(ts);
+    (stdout, view)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_signed_ground_station_verifies_the_telemetry_and_is_answered() {
+    let (stdout, view) = ground_station_run("key", KEY_HEX, "signed-gcs").await;
+    assert!(value(&stdout, "heartbeats") >= 2, "{stdout}");
+    assert!(value(&stdout, "named_values") >= 4, "{stdout}");
+    assert!(value(&stdout, "acks") >= 1, "{stdout}");
+    assert_eq!(value(&stdout, "badsig"), 0, "{stdout}");
+    assert_eq!(value(&stdout, "reject"), 0, "{stdout}");
+    assert_eq!(view.signing_drops[1].total(), 0, "{view:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_ground_station_with_another_key_sees_nothing_and_is_not_answered() {
+    let (stdout, view) = ground_station_run("key", OTHER_KEY_HEX, "wrong-key-gcs").await;
+    assert_eq!(value(&stdout, "heartbeats"), 0, "{stdout}");
+    assert_eq!(value(&stdout, "named_values"), 0, "{stdout}");
+    assert_eq!(value(&stdout, "acks"), 0, "{stdout}");
+    // The bridge's messages did arrive: pymavlink refused them.
+    assert!(value(&stdout, "badsig") >= 2, "{stdout}");
+    // And the bridge dropped the ground station's commands.
+    assert!(value(&stdout, "commands") >= 1, "{stdout}");
+    assert!(view.signing_drops[1].bad_signature >= 1, "{view:?}");
+}
+
+/// A restart whose clock is behind the timestamps the previous run reserved (a companion
+/// computer without a real-time clock): the bridge still signs above the reservation, and a
+/// signed autopilot, which takes the bridge's newer timestamps as its own, is obeyed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restart_behind_the_stored_timestamp_signs_above_it() {
+    let (text, ts) = keyed("restart");
+    let ten_minutes_ahead = lj9da_bridge::mavlink::signing::now() + 600 * 100_000;
+    std::fs::write(&ts, format!("{ten_minutes_ahead}\n")).unwrap();
+    let chain = Chain::start_opts(&text, ChainOptions::default()).await;
+    let args = vec![
+        chain.autopilot_port.to_string(),
+        "6".into(),
+        "key".into(),
+        KEY_HEX.into(),
+    ];
+    let script_run = tokio::spawn(run_script(script(AUTOPILOT), args, "autopilot"));
+    chain
+        .wait_view(
+            "the signed outputs to set a goal",
+            Duration::from_secs(30),
+            commanded,
+        )
+        .await;
+    let stdout = script_run.await.unwrap();
+    assert!(
+        value(&stdout, "bridge_timestamp") >= ten_minutes_ahead,
+        "{stdout}"
+    );
+    assert_eq!(value(&stdout, "badsig"), 0, "{stdout}");
+    chain.stop().await;
+    let reserved: u64 = std::fs::read_to_string(&ts)
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    assert!(reserved > ten_minutes_ahead);
+    let _ = std::fs::remove_file(ts);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_unsigned_ground_station_hears_the_bridge_but_is_not_answered() {
+    let (stdout, view) = ground_station_run("none", "-", "unsigned-gcs").await;
+    // Without a key pymavlink does not check signatures: it hears the bridge.
+    assert!(value(&stdout, "heartbeats") >= 2, "{stdout}");
+    // Its commands are dropped as unsigned, never answered.
+    assert!(value(&stdout, "commands") >= 2, "{stdout}");
+    assert_eq!(value(&stdout, "acks"), 0, "{stdout}");
+    assert!(view.signing_drops[1].unsigned >= 1, "{view:?}");
+}
