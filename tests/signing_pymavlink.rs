@@ -485,3 +485,79 @@ async fn an_unsigned_ground_station_hears_the_bridge_but_is_not_answered() {
     assert_eq!(value(&stdout, "acks"), 0, "{stdout}");
     assert!(view.signing_drops[1].unsigned >= 1, "{view:?}");
 }
+
+/// A ground station on the bridge's `gcs` output that sets `S1_PWM_TRIM` to 1500 (again every
+/// 0.5 s until a PARAM_VALUE says so, or `seconds` pass) and counts the PARAM_VALUEs it hears.
+const PARAM_SETTER: &str = r#"
+port, seconds, form, secret = int(sys.argv[1]), float(sys.argv[2]), sys.argv[3], sys.argv[4]
+m = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="common", source_system=255, source_component=190)
+setup(m, form, secret)
+mav = mavutil.mavlink
+sets, values, trim = 0, 0, None
+end, next_set = time.time() + seconds, 0.0
+while time.time() < end and trim != 1500.0:
+    msg = m.recv_match(blocking=True, timeout=0.1)
+    now = time.time()
+    if getattr(m, "clients", None) or getattr(m, "last_address", None) is not None:
+        if now >= next_set:
+            m.mav.param_set_send(1, 140, b"S1_PWM_TRIM", 1500.0, mav.MAV_PARAM_TYPE_REAL32)
+            sets += 1
+            next_set = now + 0.5
+    if msg is None or msg.get_type() != "PARAM_VALUE" or msg.get_srcComponent() != 140:
+        continue
+    values += 1
+    if msg.param_id == "S1_PWM_TRIM":
+        trim = msg.param_value
+print("sets", sets)
+print("param_values", values)
+print("trim", int(trim) if trim is not None else 0)
+"#;
+
+/// The bridge, its mapping in a file, the simulated autopilot signing with the mapping's key,
+/// and pymavlink setting a parameter as the ground station for up to `seconds`; returns the
+/// script's output, the bridge's view and the mapping file as it is after the run.
+async fn param_setter_run(form: &str, secret: &str, name: &str) -> (String, BridgeView, String) {
+    let (text, ts) = keyed(name);
+    let file = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("signing-{name}-{}.toml", std::process::id()));
+    std::fs::write(&file, &text).unwrap();
+    let port = free_udp_port();
+    let opts = ChainOptions {
+        autopilot: true,
+        gcs_port: Some(port),
+        mapping_file: Some(file.clone()),
+        ..ChainOptions::default()
+    };
+    let chain = Chain::start_opts(&text, opts).await;
+    let args = vec![
+        port.to_string(),
+        "6".into(),
+        form.to_string(),
+        secret.to_string(),
+    ];
+    let stdout = run_script(script(PARAM_SETTER), args, "parameter setter").await;
+    let view = chain.view.borrow().clone();
+    chain.stop().await;
+    let saved = std::fs::read_to_string(&file).unwrap();
+    let _ = std::fs::remove_file(&file);
+    let _ = std::fs::remove_file(ts);
+    (stdout, view, saved)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_signed_ground_station_sets_a_parameter_and_the_file_keeps_it() {
+    let (stdout, view, saved) = param_setter_run("key", KEY_HEX, "signed-param").await;
+    assert_eq!(value(&stdout, "trim"), 1500, "{stdout}");
+    assert!(saved.contains("pwm_trim_us = 1500"), "{saved}");
+    assert_eq!(view.signing_drops[1].total(), 0, "{view:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_parameter_set_from_an_unsigned_sender_is_refused_and_nothing_is_written() {
+    let (stdout, view, saved) = param_setter_run("none", "-", "unsigned-param").await;
+    assert!(value(&stdout, "sets") >= 2, "{stdout}");
+    // Not one PARAM_VALUE: the set never reached the parameters.
+    assert_eq!(value(&stdout, "param_values"), 0, "{stdout}");
+    assert!(!saved.contains("pwm_trim_us"), "{saved}");
+    assert!(view.signing_drops[1].unsigned >= 1, "{view:?}");
+}
