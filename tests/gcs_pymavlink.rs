@@ -9,6 +9,7 @@
 
 mod common;
 
+use common::python::python;
 use common::{Chain, ChainOptions, free_udp_port};
 use std::path::PathBuf;
 use std::process::Command;
@@ -64,37 +65,6 @@ for h in sorted(heartbeats):
     print("heartbeat", *h)
 print("names", *sorted(names))
 "#;
-
-fn python() -> PathBuf {
-    if let Some(p) = std::env::var_os("LJ9DA_PYTHON") {
-        return PathBuf::from(p);
-    }
-    let venv = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("pymavlink-venv");
-    let python = venv.join("bin/python");
-    let ready = python.exists()
-        && Command::new(&python)
-            .args(["-c", "import pymavlink"])
-            .status()
-            .is_ok_and(|s| s.success());
-    if !ready {
-        let made = Command::new("python3")
-            .args(["-m", "venv"])
-            .arg(&venv)
-            .status();
-        assert!(
-            made.is_ok_and(|s| s.success()),
-            "python3 -m venv failed: install Python 3 with venv"
-        );
-        let pip = Command::new(venv.join("bin/pip"))
-            .args(["install", "--quiet", "pymavlink"])
-            .status();
-        assert!(
-            pip.is_ok_and(|s| s.success()),
-            "pip install pymavlink failed (needs PyPI)"
-        );
-    }
-    python
-}
 
 /// Start the chain with its ground-station link on a free UDP port, run the pymavlink `script`
 /// against that port for `seconds`, stop the chain, and return what the script printed

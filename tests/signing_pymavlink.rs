@@ -16,6 +16,7 @@
 
 mod common;
 
+use common::python::python;
 use common::{Chain, ChainOptions, free_udp_port};
 use lj9da_bridge::runtime::BridgeView;
 use std::path::PathBuf;
@@ -76,37 +77,6 @@ channel = 4
 
 fn keyed(name: &str) -> (String, PathBuf) {
     mapping(&format!("signing_key = \"{KEY_HEX}\""), name)
-}
-
-fn python() -> PathBuf {
-    if let Some(p) = std::env::var_os("LJ9DA_PYTHON") {
-        return PathBuf::from(p);
-    }
-    let venv = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("pymavlink-venv");
-    let python = venv.join("bin/python");
-    let ready = python.exists()
-        && Command::new(&python)
-            .args(["-c", "import pymavlink"])
-            .status()
-            .is_ok_and(|s| s.success());
-    if !ready {
-        let made = Command::new("python3")
-            .args(["-m", "venv"])
-            .arg(&venv)
-            .status();
-        assert!(
-            made.is_ok_and(|s| s.success()),
-            "python3 -m venv failed: install Python 3 with venv"
-        );
-        let pip = Command::new(venv.join("bin/pip"))
-            .args(["install", "--quiet", "pymavlink"])
-            .status();
-        assert!(
-            pip.is_ok_and(|s| s.success()),
-            "pip install pymavlink failed (needs PyPI)"
-        );
-    }
-    python
 }
 
 /// Run the pymavlink `script` with `args` (at most 60 s) and return what it printed.

@@ -2,6 +2,8 @@
 //! bridge in this process, the simulated autopilot and a ground station on real UDP sockets.
 #![allow(dead_code)]
 
+pub mod python;
+
 use lj9da_bridge::config::Config;
 use lj9da_bridge::config::edit::MappingFile;
 use lj9da_bridge::runtime::{self, BridgeView};
