@@ -227,6 +227,28 @@ async fn autopilot_run(
     (stdout, view, chain)
 }
 
+/// As [`autopilot_run`] for 6 s, waiting (up to 30 s, `what` in the failure) meanwhile for one
+/// of the autopilot's outputs to set a goal; returns the script's output and the chain.
+async fn obeyed_autopilot_run(
+    mapping: &str,
+    form: &str,
+    secret: &str,
+    what: &str,
+) -> (String, Chain) {
+    let chain = Chain::start_opts(mapping, ChainOptions::default()).await;
+    let args = vec![
+        chain.autopilot_port.to_string(),
+        "6".into(),
+        form.to_string(),
+        secret.to_string(),
+    ];
+    let script_run = tokio::spawn(run_script(script(AUTOPILOT), args, "autopilot"));
+    chain
+        .wait_view(what, Duration::from_secs(30), commanded)
+        .await;
+    (script_run.await.unwrap(), chain)
+}
+
 /// No servo was given a goal (none is, before the first accepted output).
 fn no_goal(view: &BridgeView) -> bool {
     view.servos.iter().all(|s| s.goal_mm.is_none()) && !commanded(view)
@@ -241,23 +263,10 @@ fn commanded(view: &BridgeView) -> bool {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_signed_autopilot_moves_the_servos_and_verifies_the_bridge() {
     let (text, ts) = keyed("signed-autopilot");
-    let chain = Chain::start_opts(&text, ChainOptions::default()).await;
-    let args = vec![
-        chain.autopilot_port.to_string(),
-        "6".into(),
-        "key".into(),
-        KEY_HEX.into(),
-    ];
-    let script_run = tokio::spawn(run_script(script(AUTOPILOT), args, "autopilot"));
-    chain
-        .wait_view(
-            "the signed outputs to set a goal",
-            Duration::from_secs(30),
-            |v| v.autopilot == Some((1, 1)) && commanded(v),
-        )
-        .await;
-    let stdout = script_run.await.unwrap();
+    let (stdout, chain) =
+        obeyed_autopilot_run(&text, "key", KEY_HEX, "the signed outputs to set a goal").await;
     let view = chain.view.borrow().clone();
+    assert_eq!(view.autopilot, Some((1, 1)), "{view:?}");
     assert_eq!(view.signing_drops.len(), 2, "{view:?}");
     assert_eq!(view.signing_drops[0].total(), 0, "{view:?}");
     // pymavlink accepted the bridge's HEARTBEATs with their signatures, and refused nothing.
@@ -331,22 +340,13 @@ async fn the_passphrase_is_the_key_mavproxy_derives() {
         &format!("signing_passphrase = \"{PASSPHRASE}\""),
         "passphrase",
     );
-    let chain = Chain::start_opts(&text, ChainOptions::default()).await;
-    let args = vec![
-        chain.autopilot_port.to_string(),
-        "6".into(),
-        "passphrase".into(),
-        PASSPHRASE.into(),
-    ];
-    let script_run = tokio::spawn(run_script(script(AUTOPILOT), args, "autopilot"));
-    chain
-        .wait_view(
-            "outputs signed with the passphrase's key",
-            Duration::from_secs(30),
-            commanded,
-        )
-        .await;
-    let stdout = script_run.await.unwrap();
+    let (stdout, chain) = obeyed_autopilot_run(
+        &text,
+        "passphrase",
+        PASSPHRASE,
+        "outputs signed with the passphrase's key",
+    )
+    .await;
     assert!(value(&stdout, "bridge_heartbeats") >= 1, "{stdout}");
     assert_eq!(value(&stdout, "badsig"), 0, "{stdout}");
     assert_eq!(chain.view.borrow().signing_drops[0].total(), 0);
@@ -414,22 +414,8 @@ async fn a_restart_behind_the_stored_timestamp_signs_above_it() {
     let (text, ts) = keyed("restart");
     let ten_minutes_ahead = lj9da_bridge::mavlink::signing::now() + 600 * 100_000;
     std::fs::write(&ts, format!("{ten_minutes_ahead}\n")).unwrap();
-    let chain = Chain::start_opts(&text, ChainOptions::default()).await;
-    let args = vec![
-        chain.autopilot_port.to_string(),
-        "6".into(),
-        "key".into(),
-        KEY_HEX.into(),
-    ];
-    let script_run = tokio::spawn(run_script(script(AUTOPILOT), args, "autopilot"));
-    chain
-        .wait_view(
-            "the signed outputs to set a goal",
-            Duration::from_secs(30),
-            commanded,
-        )
-        .await;
-    let stdout = script_run.await.unwrap();
+    let (stdout, chain) =
+        obeyed_autopilot_run(&text, "key", KEY_HEX, "the signed outputs to set a goal").await;
     assert!(
         value(&stdout, "bridge_timestamp") >= ten_minutes_ahead,
         "{stdout}"
