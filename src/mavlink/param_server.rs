@@ -16,6 +16,7 @@
 
 use super::LinkId;
 use super::params::{PARAM_TYPE, Param, ParamTable, ServoInfo};
+use super::statustext::fit;
 use crate::config::Config;
 use crate::config::edit::Edit;
 use mavlink::dialects::common::{MavMessage, MavParamType, MavSeverity, PARAM_VALUE_DATA};
@@ -26,9 +27,6 @@ use std::time::{Duration, Instant};
 pub const PER_BURST: usize = 10;
 /// The time between two bursts of a list (at most 1 000 values a second).
 pub const BURST_PERIOD: Duration = Duration::from_millis(10);
-
-/// A STATUSTEXT holds 50 characters.
-const TEXT_MAX: usize = 50;
 
 /// A change asked for by PARAM_SET, for the caller to make in the mapping file.
 #[derive(Debug, Clone)]
@@ -263,25 +261,6 @@ fn number(value: f32) -> String {
     } else {
         "NaN".into()
     }
-}
-
-/// `text` in ASCII (a STATUSTEXT is a C string that ground stations do not all read as
-/// UTF-8: `µs` becomes `us`, dashes `-`), cut to the 50 characters it holds.
-fn fit(text: String) -> String {
-    let mut out = String::with_capacity(text.len());
-    for c in text.chars() {
-        match c {
-            'µ' => out.push('u'),
-            '–' | '—' | '−' => out.push('-'),
-            '…' => out.push_str("..."),
-            '×' => out.push('x'),
-            '°' => {}
-            c if c.is_ascii() => out.push(c),
-            _ => out.push('?'),
-        }
-    }
-    out.truncate(TEXT_MAX);
-    out
 }
 
 #[cfg(test)]
@@ -538,7 +517,7 @@ mod tests {
         let ParamOut::Text(_, text) = &out[1] else {
             panic!()
         };
-        assert_eq!(text.len(), TEXT_MAX);
+        assert_eq!(text.len(), super::super::statustext::MAX_TEXT);
         assert!(text.starts_with("S1_FS_ACT 3: a reason"));
     }
 }

@@ -83,7 +83,7 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
             (MAV_SEVERITY_NOTICE, format!("LJ9DA bus {bus}: port back"))
         }
     };
-    (severity, truncate(text))
+    (severity, fit(text))
 }
 
 /// "; 80C 0.4s ago": a reading quoted with its age, since it may predate the event it is
@@ -95,15 +95,23 @@ fn reading(last_read: Option<TemperatureReading>) -> String {
         .unwrap_or_default()
 }
 
-fn truncate(mut text: String) -> String {
-    if text.len() > MAX_TEXT {
-        let mut cut = MAX_TEXT;
-        while !text.is_char_boundary(cut) {
-            cut -= 1;
+/// `text` as a STATUSTEXT carries it: in ASCII (the text is a C string that ground stations do
+/// not all read as UTF-8: `µs` becomes `us`, dashes `-`), cut to [`MAX_TEXT`] characters.
+pub fn fit(text: String) -> String {
+    let mut out = String::with_capacity(text.len());
+    for c in text.chars() {
+        match c {
+            'µ' => out.push('u'),
+            '–' | '—' | '−' => out.push('-'),
+            '…' => out.push_str("..."),
+            '×' => out.push('x'),
+            '°' => {}
+            c if c.is_ascii() => out.push(c),
+            _ => out.push('?'),
         }
-        text.truncate(cut);
     }
-    text
+    out.truncate(MAX_TEXT);
+    out
 }
 
 /// What an event is about, for the flood guard: events about different servos or different
@@ -237,7 +245,7 @@ pub fn with_folded(text: String, folded: u32) -> String {
         text
     } else {
         let suffix = format!(" (+{folded})");
-        let mut t = truncate(text);
+        let mut t = fit(text);
         while t.len() + suffix.len() > MAX_TEXT {
             t.pop();
         }
