@@ -376,6 +376,14 @@ async fn send(
     link.send_raw(&frame).await
 }
 
+/// Sleep until `deadline`; with none, forever (until another branch of a `select!` wins).
+async fn sleep_until(deadline: Option<tokio::time::Instant>) {
+    match deadline {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
+    }
+}
+
 /// How a run differs from the mapping file alone.
 #[derive(Debug, Default)]
 pub struct RunOptions {
@@ -557,7 +565,7 @@ pub async fn run(
     let mut pending_goals: Vec<Vec<(ServoId, crate::bus::Goal)>> =
         vec![Vec::new(); buses.handles.len()];
     loop {
-        let deadline = tokio::time::Instant::from_std(core.poll_timeout());
+        let deadline = core.poll_timeout().map(tokio::time::Instant::from_std);
         tokio::select! {
             biased;
             changed = stop.changed() => {
@@ -575,7 +583,7 @@ pub async fn run(
                     core.event(e, Instant::now());
                 }
             }
-            _ = tokio::time::sleep_until(deadline) => {
+            _ = sleep_until(deadline) => {
                 let now = Instant::now();
                 let (reports, _) = buses.reports(&cfg);
                 core.handle_timeout(now, &reports);

@@ -419,7 +419,7 @@ fn failsafe_is_entered_after_the_timeout_and_left_on_the_next_output() {
     messages(&mut c);
     c.handle_timeout(t0 + Duration::from_millis(499), &[]);
     assert!(!c.in_failsafe());
-    assert!(c.poll_timeout() <= t0 + Duration::from_millis(500));
+    assert!(c.poll_timeout().is_some_and(|t| t <= t0 + Duration::from_millis(500)));
     c.handle_timeout(t0 + Duration::from_millis(500), &[]);
     assert!(c.in_failsafe());
     let got = commands(&mut c);
@@ -541,7 +541,7 @@ fn after_the_streams_failsafe_a_channel_that_does_not_return_is_announced() {
     let back = t0 + Duration::from_secs(2);
     c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), back);
     assert!(c.servo_in_failsafe(1) && !c.servo_in_failsafe(0));
-    assert!(c.poll_timeout() <= back + Duration::from_millis(500));
+    assert!(c.poll_timeout().is_some_and(|t| t <= back + Duration::from_millis(500)));
     c.handle_message(
         0,
         &header(AP),
@@ -1217,4 +1217,27 @@ fn events_become_one_statustext_each() {
             ),
         ]
     );
+}
+
+#[test]
+fn a_core_without_an_autopilot_has_nothing_due_and_wakes_once_one_is_found() {
+    // Before the autopilot's HEARTBEAT the bridge has no system ID to send with: nothing may
+    // fall due, or the runtime would wake at once, again and again, and spin a core.
+    let t0 = Instant::now();
+    let mut c = core(t0);
+    assert_eq!(c.poll_timeout(), None);
+    c.handle_timeout(t0, &[]);
+    assert!(messages(&mut c).is_empty());
+    assert_eq!(c.poll_timeout(), None);
+    // A ground station's message from another system changes nothing.
+    c.handle_message(1, &header((255, 190)), &autopilot_heartbeat(), t0);
+    let later = t0 + Duration::from_secs(3);
+    c.handle_timeout(later, &[]);
+    assert_eq!(c.poll_timeout(), None);
+    // The autopilot appears: its heartbeat and stream request are due now.
+    c.handle_message(0, &header(AP), &autopilot_heartbeat(), later);
+    assert!(c.poll_timeout().is_some_and(|t| t <= later));
+    c.handle_timeout(later, &[]);
+    assert!(!messages(&mut c).is_empty());
+    assert!(c.poll_timeout().is_some_and(|t| t > later));
 }

@@ -847,28 +847,37 @@ impl BridgeCore {
         self.outgoing.pop_front()
     }
 
-    /// When [`BridgeCore::handle_timeout`] must next be called.
-    pub fn poll_timeout(&self) -> Instant {
-        let mut t = self.next_heartbeat.min(self.telemetry.next_deadline());
+    /// When [`BridgeCore::handle_timeout`] must next be called; `None`: not before a message
+    /// arrives. Until an autopilot is found the bridge has no system ID to send with, so its
+    /// heartbeat, stream requests, telemetry and parameter answers wait for one, and only the
+    /// failsafe and held-back texts can fall due: a bridge waiting for its autopilot sleeps.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        let mut t = self.throttle.next_deadline();
         if let Some(last) = self.last_output_at.filter(|_| !self.stream_failsafe) {
             let timeout = self.failsafe_timeout();
-            t = t.min(last + timeout);
+            let mut due = last + timeout;
             let watched = (0..self.servos.len())
                 .filter(|i| !self.servos[*i].missing_announced && !self.commanded_only(*i))
                 .map(|i| &self.servos[i]);
             if let Some(at) = watched.filter_map(|s| s.carried_at).min() {
-                t = t.min(at + timeout);
+                due = due.min(at + timeout);
             }
+            t = earliest(t, Some(due));
         }
+        if self.system_id.is_none() {
+            return t;
+        }
+        t = earliest(t, Some(self.next_heartbeat.min(self.telemetry.next_deadline())));
         if !self.stream_ok && !self.source_refused {
-            t = t.min(self.next_stream_request);
+            t = earliest(t, Some(self.next_stream_request));
         }
-        if let Some(d) = self.throttle.next_deadline() {
-            t = t.min(d);
-        }
-        if let Some(d) = self.params.next_deadline() {
-            t = t.min(d);
-        }
-        t
+        earliest(t, self.params.next_deadline())
+    }
+}
+
+fn earliest(a: Option<Instant>, b: Option<Instant>) -> Option<Instant> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
     }
 }
