@@ -4,8 +4,8 @@
 //! common.xml and pymavlink's generated dialects leave them out, so they are checked with the
 //! `mavlink` crate's decoder in `bridge_chain.rs` instead.)
 //!
-//! The Python environment: `$LJ9DA_PYTHON` if set (`.ci/run` sets it), else a virtual
-//! environment made once under the target directory with `pip install pymavlink`.
+//! The Python environment: `$LJ9DA_PYTHON` if set, else a virtual environment made once, under a
+//! lock, in the target directory with `pip install pymavlink` (see `common/python.rs`).
 
 mod common;
 

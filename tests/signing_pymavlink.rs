@@ -11,8 +11,8 @@
 //! - A mapping's `signing_passphrase` is the key MAVProxy's `signing setup` derives.
 //! - A restart with the clock behind the stored timestamp reservation signs above it.
 //!
-//! The Python environment: `$LJ9DA_PYTHON` if set (`.ci/run` sets it), else a virtual
-//! environment made once under the target directory with `pip install pymavlink`.
+//! The Python environment: `$LJ9DA_PYTHON` if set, else a virtual environment made once, under a
+//! lock, in the target directory with `pip install pymavlink` (see `common/python.rs`).
 
 mod common;
 

@@ -1,37 +1,69 @@
 //! The Python with pymavlink (from PyPI) that the tests run as a third-party autopilot or
-//! ground station: `$LJ9DA_PYTHON` if set (`.ci/run` sets it), else a virtual environment made
-//! once under the target directory with `pip install pymavlink`.
+//! ground station: `$LJ9DA_PYTHON` if set, else a virtual environment under the target directory,
+//! made with `pip install pymavlink` by whichever test asks first.
+//!
+//! Tests of one binary run on threads and the binaries of a workspace may run side by side, so
+//! the environment is made under an exclusive `flock` on a file beside it, and is used only once
+//! a marker written after a successful install exists. A half-made environment (a run killed
+//! during `pip install`) has no marker and is made again from scratch.
 
-use std::path::PathBuf;
+use std::fs::{self, File};
+use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::OnceLock;
+
+use nix::fcntl::{Flock, FlockArg};
 
 pub fn python() -> PathBuf {
     if let Some(p) = std::env::var_os("LJ9DA_PYTHON") {
         return PathBuf::from(p);
     }
-    let venv = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("pymavlink-venv");
+    static MADE: OnceLock<PathBuf> = OnceLock::new();
+    MADE.get_or_init(|| make_venv(&PathBuf::from(env!("CARGO_TARGET_TMPDIR"))))
+        .clone()
+}
+
+fn make_venv(dir: &Path) -> PathBuf {
+    let venv = dir.join("pymavlink-venv");
     let python = venv.join("bin/python");
-    let ready = python.exists()
-        && Command::new(&python)
-            .args(["-c", "import pymavlink"])
-            .status()
-            .is_ok_and(|s| s.success());
-    if !ready {
-        let made = Command::new("python3")
-            .args(["-m", "venv"])
-            .arg(&venv)
-            .status();
-        assert!(
-            made.is_ok_and(|s| s.success()),
-            "python3 -m venv failed: install Python 3 with venv"
-        );
-        let pip = Command::new(venv.join("bin/pip"))
-            .args(["install", "--quiet", "pymavlink"])
-            .status();
-        assert!(
-            pip.is_ok_and(|s| s.success()),
-            "pip install pymavlink failed (needs PyPI)"
-        );
+    let marker = venv.join("lj9da-ready");
+    fs::create_dir_all(dir).expect("create the target's tmp directory");
+    let lock = File::create(dir.join("pymavlink-venv.lock")).expect("create the venv lock file");
+    // Held until the end of this function: a second process waits here and then finds the marker.
+    let _lock = Flock::lock(lock, FlockArg::LockExclusive)
+        .map_err(|(_, e)| e)
+        .expect("lock the venv lock file");
+    if marker.exists() {
+        return python;
     }
+    if venv.exists() {
+        fs::remove_dir_all(&venv).expect("remove a half-made virtual environment");
+    }
+    let made = Command::new("python3")
+        .args(["-m", "venv"])
+        .arg(&venv)
+        .status();
+    assert!(
+        made.is_ok_and(|s| s.success()),
+        "`python3 -m venv {}` failed: install Python 3 with venv (python3-venv on Debian/Ubuntu)",
+        venv.display()
+    );
+    let pip = Command::new(venv.join("bin/pip"))
+        .args(["install", "--quiet", "--disable-pip-version-check", "pymavlink"])
+        .status();
+    assert!(
+        pip.is_ok_and(|s| s.success()),
+        "`pip install pymavlink` into {} failed (it needs PyPI)",
+        venv.display()
+    );
+    let works = Command::new(&python)
+        .args(["-c", "import pymavlink.mavutil"])
+        .status();
+    assert!(
+        works.is_ok_and(|s| s.success()),
+        "pymavlink was installed into {} but does not import",
+        venv.display()
+    );
+    fs::write(&marker, b"pymavlink installed\n").expect("write the venv's ready marker");
     python
 }
