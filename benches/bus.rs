@@ -30,7 +30,7 @@
 //!   terminal that is slow to pass bytes on (the kernel's tty work runs in a worker thread).
 //!
 //! Goals come as an autopilot message would bring them: every servo's goal in one
-//! [`BusHandle::set_goals`] call.
+//! [`BusHandle::output_message`] call.
 //!
 //! Run: `cargo bench --bench bus` (about a minute and a half); `BUS_BENCH_FILTER=460800` runs
 //! only the rows whose label contains the text; `BUS_BENCH_TRACE=1` prints the line around
@@ -86,7 +86,7 @@ struct Row {
     gaps_us: Vec<f64>,
     latencies_us: Vec<f64>,
     idle_us: Vec<f64>,
-    /// Duration of the `set_goals` calls of idle goals (the write included).
+    /// Duration of the `output_message` calls of idle goals (the write included).
     idle_call_us: Vec<f64>,
     busy_excess_us: Vec<f64>,
     /// Goals set while a request whose reply never came was in flight.
@@ -113,7 +113,7 @@ struct GoalRecord {
     servo: u8,
     value: i16,
     at: Instant,
-    /// How long the `set_goals` call took (on an idle bus it includes writing the packet).
+    /// How long the `output_message` call took (on an idle bus it includes writing the packet).
     call: Duration,
 }
 
@@ -529,7 +529,7 @@ async fn run(s: Scenario) -> Result<Row, String> {
                     } else if handed_late.iter().any(|&(due, at)| overlaps(due, at)) {
                         row.over_sim_late += 1;
                     }
-                    // One trace per `set_goals` call (its goals share the instants).
+                    // One trace per `output_message` call (its goals share the instants).
                     if std::env::var_os("BUS_BENCH_TRACE").is_some()
                         && traced_at.replace(g.at) != Some(g.at)
                     {
@@ -566,7 +566,7 @@ enum LineUse {
 }
 
 /// Print the line around one goal over the busy-bus bound (`BUS_BENCH_TRACE=1`): µs from
-/// the goal's `set_goals` call.
+/// the goal's `output_message` call.
 fn trace_goal(
     events: &[SimEvent],
     late_wakeups: &[(Instant, Duration)],
@@ -691,7 +691,7 @@ fn produce(bus: &BusHandle, ids: &[u8], period: Duration, stop: &AtomicBool) -> 
         // One autopilot message: every servo's goal in one call.
         let value = goal_value(k);
         let at = Instant::now();
-        bus.set_goals(ids.iter().map(|&n| (id(n), Goal::Position(MmCenti(value)))));
+        bus.output_message(ids.iter().map(|&n| (id(n), Goal::Position(MmCenti(value)))));
         let call = at.elapsed();
         for &n in ids {
             out.push(GoalRecord {

@@ -163,10 +163,10 @@ async fn the_goals_of_one_message_leave_in_one_long_packet() {
     let cfg_telemetry_interval = cfg.telemetry_min_interval;
     let bus = spawn_bus(cfg, sim.path());
     every_servo_online(&bus).await;
-    bus.set_goals(ids.map(|n| (id(n), Goal::Position(MmCenti(0)))));
+    bus.output_message(ids.map(|n| (id(n), Goal::Position(MmCenti(0)))));
     wait_status(&bus, "force on", all_online_with_force).await;
     let events = sim.handle().subscribe();
-    bus.set_goals(ids.map(|n| (id(n), Goal::Position(MmCenti(10 * i16::from(n))))));
+    bus.output_message(ids.map(|n| (id(n), Goal::Position(MmCenti(10 * i16::from(n))))));
     // Every long packet from the goals on, until the bus master's next short packet (its next
     // poll, within `telemetry_min_interval`): a goal left behind by a split message would have
     // gone out before it. Waiting for that packet, rather than a fixed 200 ms, means the window

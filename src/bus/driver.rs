@@ -2,7 +2,7 @@
 //! out. One OS thread per bus.
 //!
 //! The bus master and the port sit together behind one mutex (the *core*). Packets that became
-//! due are written before the lock is let go: by [`BusHandle::set_goals`] in the caller's
+//! due are written before the lock is let go: by [`BusHandle::output_message`] in the caller's
 //! thread (the goals of one autopilot message reach the port within one system call, with no
 //! thread to wake first), and by the bus thread when a reply completes, when a deadline
 //! passes, or when [`BusHandle::set_goal`] woke it (goals set one by one meanwhile share one
@@ -451,8 +451,8 @@ impl BusHandle {
 
     /// The newest goal for servo `id`; the bus thread writes it as soon as it wakes (goals set
     /// one after another meanwhile share one long packet). Ignored after shutdown and for IDs
-    /// not on this bus. For the goals of one autopilot message, [`BusHandle::set_goals`] is
-    /// faster.
+    /// not on this bus. It is no tick of the autopilot's rhythm: the goals of an autopilot
+    /// message go through [`BusHandle::output_message`], which is also faster.
     pub fn set_goal(&self, id: ServoId, goal: Goal) {
         let shared = &self.owners.shared;
         let mut core = shared.core();
@@ -460,13 +460,28 @@ impl BusHandle {
         shared.wake(core);
     }
 
-    /// The newest goals of several servos at once (e.g. every channel of one autopilot
-    /// message). When no reply is pending and the wire is free, the one long packet carrying
-    /// them is written before this returns, from the caller's thread.
+    /// One output message of the autopilot arrived, with the goals it changed (none when it
+    /// repeated the last ones: it is still a tick of the autopilot's rhythm). When no reply is
+    /// pending, the wire is free and no message of the same tick is expected within a frame's
+    /// time, the one long packet carrying the goals is written before this returns, from the
+    /// caller's thread.
+    pub fn output_message(&self, goals: impl IntoIterator<Item = (ServoId, Goal)>) {
+        self.write_goals(true, goals);
+    }
+
+    /// The newest goals of several servos at once that no autopilot message brought (a
+    /// failsafe position, a parameter change), written like [`BusHandle::output_message`]'s.
     pub fn set_goals(&self, goals: impl IntoIterator<Item = (ServoId, Goal)>) {
+        self.write_goals(false, goals);
+    }
+
+    fn write_goals(&self, output_message: bool, goals: impl IntoIterator<Item = (ServoId, Goal)>) {
         let shared = &self.owners.shared;
         let mut core = shared.core();
         let now = Instant::now();
+        if output_message {
+            core.master.output_message(now);
+        }
         for (id, goal) in goals {
             core.master.set_goal(id, goal, now);
         }

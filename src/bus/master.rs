@@ -170,9 +170,20 @@ impl BusMaster {
         self.servos.iter().position(|s| s.id() == id)
     }
 
+    /// An output message of the autopilot arrived (SERVO_OUTPUT_RAW of either port,
+    /// ACTUATOR_OUTPUT_STATUS, an output command), whether or not it changed a goal: a tick of
+    /// the autopilot's rhythm ([`GoalRhythm`]). Its goals follow through
+    /// [`BusMaster::set_goal`] at the same instant.
+    pub fn output_message(&mut self, now: Instant) {
+        self.touch(now);
+        self.gather_goal(now);
+        self.rhythm.message_at(now);
+    }
+
     /// The newest goal for servo `id`. It replaces a goal that has not reached the wire yet. A
     /// position goal is clamped to the servo's limits when it is sent. An ID not on this bus is
-    /// ignored (and counted).
+    /// ignored (and counted). The message that carried it is told with
+    /// [`BusMaster::output_message`].
     pub fn set_goal(&mut self, id: ServoId, goal: Goal, now: Instant) {
         self.touch(now);
         let Some(i) = self.index_of(id) else {
@@ -181,16 +192,9 @@ impl BusMaster {
         };
         self.counters.goals_received += 1;
         self.changed = true;
-        if matches!(goal, Goal::Position(_)) {
-            self.gather_goal(now);
-            self.rhythm.goal_at(now);
-        }
         let s = &mut self.servos[i];
         let waiting = s.unsent_position();
         s.desired = Some(goal);
-        if matches!(goal, Goal::Position(_)) {
-            s.goal_at = Some(now);
-        }
         match (waiting, s.unsent_position()) {
             (Some(old), Some(new)) if old == new => self.counters.goals_unchanged += 1,
             (Some(_), _) => {
@@ -210,6 +214,9 @@ impl BusMaster {
         self.counters.bytes_received += bytes.len() as u64;
         self.decoder.push(bytes);
         self.drain_decoder(now);
+        if self.pending.is_some_and(|p| p.garbled && p.deadline <= now) {
+            self.expire_pending(now);
+        }
         self.judge_replies(now);
         self.release_overdue(now);
     }
@@ -261,6 +268,15 @@ impl BusMaster {
                 Ok(Decoded::Reply(reply)) => self.on_reply(reply, now),
                 Ok(Decoded::Echo { .. }) => self.counters.echoes += 1,
                 Ok(Decoded::Ack) => self.counters.unexpected_replies += 1,
+                Err(DecodeError::ReplyBadChecksum {
+                    id,
+                    address,
+                    length,
+                    ..
+                }) => {
+                    self.counters.bad_sums += 1;
+                    self.on_garbled_reply(id, address, length, now);
+                }
                 Err(DecodeError::BadChecksum { .. }) => {
                     self.counters.bad_sums += 1;
                     if let Some(p) = self.pending.as_mut() {
@@ -272,6 +288,22 @@ impl BusMaster {
                 }
                 Err(_) => self.counters.garbage_bytes += 1,
             }
+        }
+    }
+
+    /// A whole return packet with a bad sum came in. When it is the reply awaited (its servo,
+    /// registers and length), the servo has finished talking and the line is quiet: the
+    /// request ends now as a garbled reply, as soon as a clean one would have, instead of
+    /// holding the bus until its deadline. Any other is only counted against the pending one.
+    fn on_garbled_reply(&mut self, id: u8, address: u8, length: u8, now: Instant) {
+        let Some(p) = self.pending.as_mut() else {
+            return;
+        };
+        p.garbled = true;
+        let awaited = self.servos.get(p.index).is_some_and(|s| s.id().get() == id)
+            && p.expected == ExpectedReply::Registers { address, length };
+        if awaited {
+            p.deadline = p.deadline.min(now);
         }
     }
 
@@ -396,13 +428,18 @@ impl BusMaster {
             }
             return;
         }
+        self.expire_pending(now);
+    }
+
+    /// The pending request's deadline has passed (or its reply came garbled): it ends as a
+    /// timeout, counted for its servo.
+    fn expire_pending(&mut self, now: Instant) {
         // A complete reply may sit behind a candidate that never completed.
         self.decoder.abandon_partial();
         self.drain_decoder(now);
-        if self.pending.is_none() {
+        let Some(p) = self.pending.take() else {
             return;
-        }
-        self.pending = None;
+        };
         self.changed = true;
         self.counters.timeouts += 1;
         let mut events = Vec::new();
@@ -464,7 +501,7 @@ impl BusMaster {
         if self.command_needed() {
             // Never more than one frame queued ahead of the wire: goals that arrive while the
             // wire is busy are coalesced here, not queued in the port.
-            if self.wire_free_at > now + self.command_lead() {
+            if self.wire_free_at > now + self.command_lead() || self.rest_of_tick(now).is_some() {
                 return None;
             }
             return self.long_packet(now);
@@ -519,9 +556,9 @@ impl BusMaster {
             .map(|i| (i, Transaction::Position))
     }
 
-    /// A goal came at `now`: the first after a quiet spell of [`BusConfig::tick_gather`]
+    /// A message came at `now`: the first after a quiet spell of [`BusConfig::tick_gather`]
     /// opens a window of that length for the other messages of its tick; each message in the
-    /// window extends it by as much, up to twice that length from its opening. Goals that
+    /// window extends it by as much, up to twice that length from its opening. Messages that
     /// never leave such a spell (a stream faster than the gathering) open none, so polls go on
     /// between them.
     fn gather_goal(&mut self, now: Instant) {
@@ -532,7 +569,7 @@ impl BusMaster {
             }
             _ if self
                 .rhythm
-                .latest_goal()
+                .latest_message()
                 .is_none_or(|latest| now.saturating_duration_since(latest) >= gather) =>
             {
                 Some((now, now + gather))
@@ -543,20 +580,23 @@ impl BusMaster {
 
     /// Until when, seen at `at`, no request may start because the autopilot's tick is still
     /// coming in: the gathering window ([`BusMaster::gather_goal`]); and, while the rhythm is
-    /// known, until half a period after the tick began as long as a servo that had a goal in
-    /// the tick before has none in this one yet (a message of the tick is late). Not after
-    /// `at` when nothing holds requests back.
+    /// known, until half a period after the tick began as long as it has had fewer messages
+    /// than the tick before (a message of the tick is late). Not after `at` when nothing holds
+    /// requests back.
     fn gathering_until(&self, at: Instant) -> Instant {
         let gather = self.gather.map_or(at, |(_, ends)| ends);
         let incomplete = self.rhythm.tick(at).and_then(|(start, period)| {
             let until = start + period / 2;
-            let awaited = self.servos.iter().any(|s| {
-                s.goal_at
-                    .is_some_and(|g| g < start && start - g < period + period / 2)
-            });
-            (awaited && at < until).then_some(until)
+            (self.rhythm.tick_incomplete(at) && at < until).then_some(until)
         });
         incomplete.map_or(gather, |until| until.max(gather))
+    }
+
+    /// While the autopilot's tick still lacks a message that comes so soon that waiting for it
+    /// costs less than a second long packet queued behind the first (one frame's wire time),
+    /// the instant until which the long packet waits, so that one frame carries the whole tick.
+    fn rest_of_tick(&self, at: Instant) -> Option<Instant> {
+        self.rhythm.rest_of_tick(at, self.command_lead())
     }
 
     /// How long transaction `tx` with servo `i` holds the bus: request and reply on the wire,
@@ -816,10 +856,13 @@ impl BusMaster {
             return None;
         }
         if self.command_needed() {
+            let lead = self
+                .wire_free_at
+                .checked_sub(self.command_lead())
+                .map_or(self.now, |t| t.max(self.now));
             return Some(
-                self.wire_free_at
-                    .checked_sub(self.command_lead())
-                    .map_or(self.now, |t| t.max(self.now)),
+                self.rest_of_tick(self.now)
+                    .map_or(lead, |rest| rest.max(lead)),
             );
         }
         let next = self
@@ -837,8 +880,8 @@ impl BusMaster {
         if self.next_request(at).is_some() {
             return Some(at);
         }
-        // Held for an expected goal (a goal arriving meanwhile is taken at once through
-        // `set_goal`): the window's end, when everything fits again.
+        // Held for an expected tick (a message arriving meanwhile is taken at once through
+        // `output_message`): the window's end, when everything fits again.
         let start = self.wire_free_at.max(at);
         let closes = self.rhythm.window(start).map_or(at, |(_, closes)| closes);
         Some(closes.max(at))

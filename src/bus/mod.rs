@@ -40,9 +40,10 @@
 //!   drawing at least the configured current, for the configured time, is reported stalled.
 //!
 //! # Deviations from the API sketch the bridge was planned against
-//! - [`BusHandle::set_goals`] (added) takes the goals of several servos at once (every channel
-//!   of one autopilot message) and, when no reply is pending, writes their one long packet
-//!   from the caller's thread before returning: the fastest path from a goal to the wire.
+//! - [`BusHandle::output_message`] (added) takes one autopilot output message: a tick of its
+//!   rhythm, with the goals of several servos at once (none when the outputs held still), and,
+//!   when no reply is pending, writes their one long packet from the caller's thread before
+//!   returning: the fastest path from a goal to the wire.
 //!   [`BusHandle::set_goal`] wakes the driver task, which writes within its wake-up time; goals
 //!   set one by one meanwhile share one long packet. The goal channel of the sketch is
 //!   replaced by a mutex around the bus master and the port's write side (see [`driver`]).

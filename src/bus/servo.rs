@@ -114,8 +114,6 @@ pub(super) struct Servo {
     pub force_backoff: Duration,
 
     pub desired: Option<Goal>,
-    /// When the latest position goal was handed in.
-    pub goal_at: Option<Instant>,
     pub sent: Option<SentGoal>,
     /// Register 32 (goal time) as last read or written; `None` when unknown.
     pub goal_time_reg: Option<Ms10>,
@@ -163,7 +161,6 @@ impl Servo {
             force_retry_at: None,
             force_backoff: Duration::ZERO,
             desired: None,
-            goal_at: None,
             sent: None,
             goal_time_reg: None,
             soft_pending: true,

@@ -109,6 +109,8 @@ struct ServoSlot {
     missing_announced: bool,
     /// Some output message has carried its channel.
     ever_carried: bool,
+    /// An output message or command has carried it since [`BridgeCore::take_output_ticks`].
+    ticked: bool,
 }
 
 /// See the module docs.
@@ -161,6 +163,7 @@ impl BridgeCore {
                 failsafe: false,
                 missing_announced: false,
                 ever_carried: false,
+                ticked: false,
             })
             .collect();
         Self {
@@ -358,6 +361,7 @@ impl BridgeCore {
             }
             slot.carried_at = Some(now);
             slot.ever_carried = true;
+            slot.ticked = true;
             slot.failsafe = false;
             if std::mem::take(&mut slot.missing_announced) {
                 self.event(BridgeEvent::ChannelBack { servo: i, channel }, now);
@@ -386,6 +390,7 @@ impl BridgeCore {
         let slot = &mut self.servos[i];
         slot.carried_at = Some(now);
         slot.failsafe = false;
+        slot.ticked = true;
         self.command(i, command);
     }
 
@@ -837,6 +842,19 @@ impl BridgeCore {
         self.command(i, command);
     }
 
+    /// The servos (indices in mapping order) that an output message or command carried since
+    /// the last call, whether or not it changed their goal: each is a tick of the autopilot's
+    /// rhythm for the servo's bus, so that the bus keeps the rhythm while the outputs hold.
+    pub fn take_output_ticks(&mut self) -> Vec<usize> {
+        let mut ticked = Vec::new();
+        for (i, slot) in self.servos.iter_mut().enumerate() {
+            if std::mem::take(&mut slot.ticked) {
+                ticked.push(i);
+            }
+        }
+        ticked
+    }
+
     /// The next servo command: (servo index in mapping order, command).
     pub fn poll_command(&mut self) -> Option<(usize, Goal)> {
         self.commands.pop_front()
@@ -867,7 +885,10 @@ impl BridgeCore {
         if self.system_id.is_none() {
             return t;
         }
-        t = earliest(t, Some(self.next_heartbeat.min(self.telemetry.next_deadline())));
+        t = earliest(
+            t,
+            Some(self.next_heartbeat.min(self.telemetry.next_deadline())),
+        );
         if !self.stream_ok && !self.source_refused {
             t = earliest(t, Some(self.next_stream_request));
         }

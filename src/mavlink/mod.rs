@@ -16,6 +16,7 @@
 pub mod commands;
 pub mod core;
 pub mod health;
+pub mod outbox;
 pub mod outputs;
 pub mod param_server;
 pub mod params;

@@ -194,7 +194,16 @@ impl Decoder {
         let computed = xor_sum(&b[2..total - 1]);
         let received = b[total - 1];
         if computed != received {
-            return Step::Skip(1, Some(DecodeError::BadChecksum { computed, received }));
+            return Step::Skip(
+                1,
+                Some(DecodeError::ReplyBadChecksum {
+                    id,
+                    address,
+                    length,
+                    computed,
+                    received,
+                }),
+            );
         }
         Step::Done(
             total,
@@ -398,7 +407,10 @@ mod tests {
         let err = d.poll().unwrap().unwrap_err();
         assert_eq!(
             err,
-            DecodeError::BadChecksum {
+            DecodeError::ReplyBadChecksum {
+                id: 1,
+                address: 42,
+                length: 18,
                 computed: good_sum,
                 received: good_sum ^ 0x66
             }
@@ -406,7 +418,7 @@ mod tests {
         assert_eq!(
             err.to_string(),
             format!(
-                "bad checksum: computed 0x{:02X}, packet says 0x{:02X}",
+                "return packet from ID 1 (registers 42, 18 bytes) has a bad checksum: computed 0x{:02X}, packet says 0x{:02X}",
                 good_sum,
                 good_sum ^ 0x66
             )

@@ -73,6 +73,18 @@ pub enum ProtocolError {
 pub enum DecodeError {
     #[error("bad checksum: computed 0x{computed:02X}, packet says 0x{received:02X}")]
     BadChecksum { computed: u8, received: u8 },
+    /// A whole return packet (its header and length read, all its bytes in) whose sum is
+    /// wrong: a servo answered, garbled.
+    #[error(
+        "return packet from ID {id} (registers {address}, {length} bytes) has a bad checksum: computed 0x{computed:02X}, packet says 0x{received:02X}"
+    )]
+    ReplyBadChecksum {
+        id: u8,
+        address: u8,
+        length: u8,
+        computed: u8,
+        received: u8,
+    },
     #[error("skipped {skipped} bytes that start no packet (expected a header FD DF{ack})", ack = if *.expecting_ack { " or the ACK byte 07h" } else { "" })]
     Garbage { skipped: usize, expecting_ack: bool },
     #[error("return packet has Count {count}, expected 1")]

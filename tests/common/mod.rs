@@ -137,6 +137,9 @@ pub struct ChainOptions {
     pub sim_seed: Option<u64>,
     /// The file parameter changes are saved into (it must hold `mapping`); `None`: in memory.
     pub mapping_file: Option<PathBuf>,
+    /// The ground-station link's address (e.g. `tcpout:127.0.0.1:5760`); `gcs` then hears
+    /// nothing. Takes the place of `gcs_port`.
+    pub gcs_address: Option<String>,
 }
 
 pub struct Chain {
@@ -184,6 +187,7 @@ impl Chain {
             gcs_keep,
             sim_seed,
             mapping_file,
+            gcs_address,
         } = opts;
         let mut cfg = Config::parse(mapping, "test mapping").expect("test mapping is valid");
         let mut sims = Vec::new();
@@ -217,12 +221,16 @@ impl Chain {
         }
         let autopilot_port = free_udp_port();
         cfg.mavlink.connection = format!("udpin:127.0.0.1:{autopilot_port}");
-        let (gcs, gcs_task) = match gcs_port {
-            Some(port) => {
+        let (gcs, gcs_task) = match (gcs_address, gcs_port) {
+            (Some(address), _) => {
+                cfg.mavlink.gcs = Some(address);
+                (Heard::default(), tokio::spawn(async {}))
+            }
+            (None, Some(port)) => {
                 cfg.mavlink.gcs = Some(format!("udpout:127.0.0.1:{port}"));
                 (Heard::default(), tokio::spawn(async {}))
             }
-            None => {
+            (None, None) => {
                 let port = free_udp_port();
                 cfg.mavlink.gcs = Some(format!("udpout:127.0.0.1:{port}"));
                 ground_station_keeping(port, gcs_keep).await

@@ -2,8 +2,15 @@
 //! and the buses named in the mapping file, carries messages, goals, events and statuses
 //! between [`BridgeCore`] and the bus drivers, and stops cleanly on request.
 //!
-//! All decisions live in [`BridgeCore`] and [`crate::bus::BusMaster`]; this file only moves
+//! A run has three parts: start-up ([`Bridge::start`]: links, signing, flight record, buses,
+//! the tasks that feed the loop), the loop ([`Bridge::serve`]: one input at a time into the
+//! core, then its outputs out: goals to the buses, messages to the links' writers, the view),
+//! and shutdown ([`Bridge::stop`]). The links' readers and writers are in [`links`].
+//!
+//! All decisions live in [`BridgeCore`] and [`crate::bus::BusMaster`]; this module only moves
 //! data and waits.
+
+mod links;
 
 use crate::bus::{
     BusConfig, BusEvent, BusHandle, BusStatus, Health, ServoSetup, ShutdownForce, spawn_bus,
@@ -12,41 +19,23 @@ use crate::bus::{
 use crate::config::edit::MappingFile;
 use crate::config::{Config, ExitAction};
 use crate::mavlink::param_server::ParamSet;
-use crate::mavlink::signing::{self, DropCounts, Incoming, Signing, TimestampFile};
+use crate::mavlink::signing::{self, DropCounts};
 use crate::mavlink::{
     BridgeCore, BridgeEvent, LinkId, ServoEvent, ServoReport, ServoState, TemperatureReading,
 };
 use crate::protocol::ServoId;
 use crate::record::{RecordHandle, RecordLimits, RecordServo, Recorder, StatusFeed};
+use ::mavlink::MavHeader;
 use ::mavlink::dialects::common::MavMessage;
-use ::mavlink::{AsyncMavConnection, MavHeader};
+use links::{LinkWriter, SharedSigning};
 use std::collections::HashMap;
 use std::path::PathBuf;
-use std::sync::{Arc, Mutex};
 use std::time::Instant;
 use thiserror::Error;
 use tokio::sync::{mpsc, watch};
 
 /// How often the view is refreshed at most.
 const VIEW_PERIOD: std::time::Duration = std::time::Duration::from_millis(50);
-
-type Link = Arc<::mavlink::AsyncConnection<MavMessage>>;
-
-/// MAVLink 2 signing, shared by the links' reader tasks and the send loop, and where the
-/// timestamp reservations it asks for go to be written (by [`keep_reservations`]).
-#[derive(Clone)]
-struct SharedSigning {
-    signing: Arc<Mutex<Signing>>,
-    reservations: watch::Sender<u64>,
-}
-
-impl SharedSigning {
-    fn lock(&self) -> std::sync::MutexGuard<'_, Signing> {
-        self.signing
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-    }
-}
 
 /// Why the bridge could not start.
 #[derive(Debug, Error)]
@@ -87,6 +76,9 @@ pub struct BridgeView {
     /// With signing on: per link (the autopilot's, then the ground station's) the incoming
     /// messages dropped as unsigned, badly signed or replayed. Empty with signing off.
     pub signing_drops: Vec<DropCounts>,
+    /// Per link (the autopilot's, then the ground station's): outgoing messages dropped
+    /// because the link did not keep up (see [`crate::mavlink::outbox`]).
+    pub send_drops: Vec<u64>,
 }
 
 /// How many of the latest STATUSTEXTs the view keeps.
@@ -278,112 +270,6 @@ fn bridge_event(cfg: &Config, buses: &Buses, bus: usize, event: &BusEvent) -> Op
     })
 }
 
-async fn connect(address: &str) -> Result<Link, RunError> {
-    let mut conn = ::mavlink::connect_async::<MavMessage>(address)
-        .await
-        .map_err(|source| RunError::Mavlink {
-            address: address.to_string(),
-            source,
-        })?;
-    conn.set_allow_recv_any_version(true);
-    Ok(Arc::new(conn))
-}
-
-/// Signing for `links` links as the mapping asks (`None`: off). The timestamp file of a mapping
-/// given without a file goes in the flight record's folder, or the temporary folder.
-fn open_signing(
-    cfg: &Config,
-    links: usize,
-    record_dir: Option<&std::path::Path>,
-) -> Result<Option<SharedSigning>, RunError> {
-    let Some(setup) = &cfg.mavlink.signing else {
-        return Ok(None);
-    };
-    let path = setup.timestamp_file.clone().unwrap_or_else(|| {
-        record_dir
-            .map(std::path::Path::to_path_buf)
-            .unwrap_or_else(std::env::temp_dir)
-            .join("lj9da-bridge.signing-timestamp")
-    });
-    let file = TimestampFile::new(&path);
-    let signing = Signing::open(setup.key.clone(), links, &file, signing::now())?;
-    tracing::info!(timestamp_file = %path.display(), "MAVLink 2 signing on: every message signed, unsigned ones dropped");
-    let (reservations, pending) = watch::channel(0);
-    tokio::spawn(keep_reservations(file, pending));
-    Ok(Some(SharedSigning {
-        signing: Arc::new(Mutex::new(signing)),
-        reservations,
-    }))
-}
-
-/// Write each new signing timestamp reservation, off the send path (a write waits for the
-/// disk); the latest one wins if they come faster than the disk. Ends with the bridge.
-async fn keep_reservations(file: TimestampFile, mut pending: watch::Receiver<u64>) {
-    while pending.changed().await.is_ok() {
-        let reservation = *pending.borrow_and_update();
-        let file = file.clone();
-        if let Ok(Err(e)) = tokio::task::spawn_blocking(move || file.store(reservation)).await {
-            tracing::warn!("{e}; a restart might reuse signing timestamps");
-        }
-    }
-}
-
-/// The next message for [`BridgeCore`] from `link`: every message without signing; with it,
-/// only correctly signed fresh ones (the others are counted and, now and then, logged with the
-/// link's `address`).
-async fn receive(
-    link: &Link,
-    link_id: LinkId,
-    address: &str,
-    signing: Option<&SharedSigning>,
-) -> Result<Option<(MavHeader, MavMessage)>, ::mavlink::error::MessageReadError> {
-    let Some(signing) = signing else {
-        return link.recv().await.map(Some);
-    };
-    let raw = link.recv_raw().await?;
-    let incoming = signing
-        .lock()
-        .receive(link_id, &raw, signing::now(), Instant::now());
-    Ok(match incoming {
-        Incoming::Message(header, message) => Some((header, message)),
-        Incoming::Unknown => None,
-        Incoming::Dropped { warning, .. } => {
-            if let Some(w) = warning {
-                tracing::warn!(%address, "{w}");
-            }
-            None
-        }
-    })
-}
-
-/// Send `message` on `link`, signed when signing is on.
-async fn send(
-    link: &Link,
-    link_id: LinkId,
-    signing: Option<&SharedSigning>,
-    header: &MavHeader,
-    message: &MavMessage,
-) -> Result<usize, ::mavlink::error::MessageWriteError> {
-    let Some(signing) = signing else {
-        return link.send(header, message).await;
-    };
-    let (frame, reservation) = signing
-        .lock()
-        .sign(link_id, *header, message, signing::now());
-    if let Some(r) = reservation {
-        signing.reservations.send_replace(r);
-    }
-    link.send_raw(&frame).await
-}
-
-/// Sleep until `deadline`; with none, forever (until another branch of a `select!` wins).
-async fn sleep_until(deadline: Option<tokio::time::Instant>) {
-    match deadline {
-        Some(at) => tokio::time::sleep_until(at).await,
-        None => std::future::pending().await,
-    }
-}
-
 /// How a run differs from the mapping file alone.
 #[derive(Debug, Default)]
 pub struct RunOptions {
@@ -480,207 +366,329 @@ fn start_record(cfg: &Config, dir: &std::path::Path) -> Option<RecordHandle> {
 pub async fn run(
     cfg: Config,
     opts: RunOptions,
-    mut stop: watch::Receiver<bool>,
+    stop: watch::Receiver<bool>,
 ) -> Result<(), RunError> {
-    let RunOptions {
-        ports,
-        view,
-        record_dir,
-        check_latency,
-        mapping,
-    } = opts;
-    if check_latency {
-        // A run on the aircraft (the `run` command): its adapters and its memory.
-        crate::deploy::check_buses(&cfg);
-        crate::bus::driver::lock_memory();
-    }
-    let mut links = vec![connect(&cfg.mavlink.connection).await?];
-    if let Some(gcs) = &cfg.mavlink.gcs {
-        links.push(connect(gcs).await?);
-    }
-    tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links open");
-    let signing = open_signing(&cfg, links.len(), record_dir.as_deref())?;
-    let record = record_dir
-        .filter(|_| cfg.record.enabled)
-        .and_then(|dir| start_record(&cfg, &dir));
-    let buses = Buses::spawn(&cfg, &ports, record.as_ref());
-    let mut core = BridgeCore::new(cfg.clone(), Instant::now());
+    let mut bridge = Bridge::start(cfg, opts).await?;
+    bridge.serve(stop).await;
+    bridge.stop().await;
+    Ok(())
+}
 
-    let (msg_tx, mut msg_rx) = mpsc::channel::<(LinkId, MavHeader, MavMessage)>(1024);
-    let mut readers = Vec::new();
-    let addresses = std::iter::once(&cfg.mavlink.connection).chain(&cfg.mavlink.gcs);
-    for ((link_id, link), address) in links.iter().enumerate().zip(addresses) {
-        let link = link.clone();
-        let tx = msg_tx.clone();
-        let signing = signing.clone();
-        let address = address.clone();
-        readers.push(tokio::spawn(async move {
-            loop {
-                match receive(&link, link_id, &address, signing.as_ref()).await {
-                    Ok(Some((header, msg))) => {
-                        if tx.send((link_id, header, msg)).await.is_err() {
-                            return;
-                        }
-                    }
-                    Ok(None) => {}
-                    Err(e) => {
-                        tracing::debug!(link = link_id, "MAVLink receive: {e}");
-                        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+/// A running bridge: the core, its buses and links, and the channels that feed its loop.
+struct Bridge {
+    cfg: Config,
+    core: BridgeCore,
+    buses: Buses,
+    record: Option<RecordHandle>,
+    signing: Option<SharedSigning>,
+    writers: Vec<LinkWriter>,
+    /// The links' readers and the buses' event forwarders.
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+    messages: mpsc::Receiver<(LinkId, MavHeader, MavMessage)>,
+    bus_events: mpsc::UnboundedReceiver<(usize, BusEvent)>,
+    edits: mpsc::UnboundedSender<ParamSet>,
+    edited: mpsc::UnboundedReceiver<EditResult>,
+    view: Option<watch::Sender<BridgeView>>,
+    view_at: Instant,
+    texts: std::collections::VecDeque<String>,
+}
+
+/// One input of the loop, in the order the loop prefers them.
+enum Input {
+    Stop,
+    Message(LinkId, MavHeader, MavMessage),
+    Edited(ParamSet, Result<Config, String>),
+    BusEvent(usize, BusEvent),
+    Timeout,
+}
+
+impl Bridge {
+    /// Open the links and the buses, start the flight record and the tasks that feed the loop.
+    async fn start(cfg: Config, opts: RunOptions) -> Result<Self, RunError> {
+        let RunOptions {
+            ports,
+            view,
+            record_dir,
+            check_latency,
+            mapping,
+        } = opts;
+        if check_latency {
+            // A run on the aircraft (the `run` command): its adapters and its memory.
+            crate::deploy::check_buses(&cfg);
+            crate::bus::driver::lock_memory();
+        }
+        let addresses: Vec<String> = std::iter::once(&cfg.mavlink.connection)
+            .chain(&cfg.mavlink.gcs)
+            .cloned()
+            .collect();
+        let mut links = Vec::with_capacity(addresses.len());
+        for address in &addresses {
+            links.push(links::connect(address).await?);
+        }
+        tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links open");
+        let signing = links::open_signing(&cfg, links.len(), record_dir.as_deref())?;
+        let record = record_dir
+            .filter(|_| cfg.record.enabled)
+            .and_then(|dir| start_record(&cfg, &dir));
+        let buses = Buses::spawn(&cfg, &ports, record.as_ref());
+        let core = BridgeCore::new(cfg.clone(), Instant::now());
+
+        let (message_tx, messages) = mpsc::channel(1024);
+        let mut tasks = Vec::new();
+        let mut writers = Vec::new();
+        for (link_id, (link, address)) in links.into_iter().zip(addresses).enumerate() {
+            writers.push(LinkWriter::spawn(link.clone(), link_id, signing.clone()));
+            tasks.push(links::spawn_reader(
+                link,
+                link_id,
+                address,
+                signing.clone(),
+                message_tx.clone(),
+            ));
+        }
+        let (event_tx, bus_events) = mpsc::unbounded_channel();
+        for (i, bus) in buses.handles.iter().enumerate() {
+            tasks.push(forward_bus_events(
+                &cfg,
+                i,
+                bus,
+                record.clone(),
+                event_tx.clone(),
+            ));
+        }
+        let (edits, edited) = spawn_mapping_writer(mapping);
+        Ok(Bridge {
+            cfg,
+            core,
+            buses,
+            record,
+            signing,
+            writers,
+            tasks,
+            messages,
+            bus_events,
+            edits,
+            edited,
+            view,
+            view_at: Instant::now(),
+            texts: std::collections::VecDeque::with_capacity(VIEW_TEXTS),
+        })
+    }
+
+    /// The loop: one input into the core, then everything it has to say out, until `stop`.
+    async fn serve(&mut self, mut stop: watch::Receiver<bool>) {
+        loop {
+            match self.next_input(&mut stop).await {
+                Input::Stop => return,
+                Input::Message(link, header, msg) => {
+                    self.core
+                        .handle_message(link, &header, &msg, Instant::now());
+                }
+                Input::Edited(set, result) => {
+                    self.core.param_set_done(&set, result, Instant::now());
+                }
+                Input::BusEvent(bus, event) => {
+                    if let Some(e) = bridge_event(&self.cfg, &self.buses, bus, &event) {
+                        self.core.event(e, Instant::now());
                     }
                 }
-            }
-        }));
-    }
-    let (event_tx, mut event_rx) = mpsc::unbounded_channel::<(usize, BusEvent)>();
-    for (i, bus) in buses.handles.iter().enumerate() {
-        let mut events = bus.events();
-        let tx = event_tx.clone();
-        let feed = record
-            .clone()
-            .map(|r| StatusFeed::new(r, &RecordServo::from_config(&cfg)));
-        let bus_name = bus.name().to_string();
-        readers.push(tokio::spawn(async move {
-            loop {
-                match events.recv().await {
-                    Ok(e) => {
-                        if let Some(feed) = &feed {
-                            feed.bus_event(&bus_name, &e);
-                        }
-                        if tx.send((i, e)).is_err() {
-                            return;
-                        }
-                    }
-                    Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
-                        tracing::warn!(bus = i, "{n} bus events dropped");
-                    }
-                    Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+                Input::Timeout => {
+                    let (reports, _) = self.buses.reports(&self.cfg);
+                    self.core.handle_timeout(Instant::now(), &reports);
                 }
             }
-        }));
+            self.pass_param_sets();
+            self.pass_goals();
+            self.pass_messages();
+            for note in self.core.take_notes() {
+                tracing::warn!("{note}");
+            }
+            self.refresh_view();
+        }
     }
 
-    let (edit_tx, mut edited_rx) = spawn_mapping_writer(mapping);
-    let mut view_at = Instant::now();
-    let mut texts = std::collections::VecDeque::with_capacity(VIEW_TEXTS);
-    let mut pending_goals: Vec<Vec<(ServoId, crate::bus::Goal)>> =
-        vec![Vec::new(); buses.handles.len()];
-    loop {
-        let deadline = core.poll_timeout().map(tokio::time::Instant::from_std);
+    /// Wait for the next input: a stop first, then messages, finished parameter changes, bus
+    /// events, and the core's deadline (none before an autopilot is found: the loop sleeps).
+    async fn next_input(&mut self, stop: &mut watch::Receiver<bool>) -> Input {
+        let deadline = self.core.poll_timeout().map(tokio::time::Instant::from_std);
         tokio::select! {
             biased;
             changed = stop.changed() => {
-                if changed.is_err() || *stop.borrow() { break; }
+                if changed.is_err() || *stop.borrow() { Input::Stop } else { Input::Timeout }
             }
-            Some((link, header, msg)) = msg_rx.recv() => {
-                core.handle_message(link, &header, &msg, Instant::now());
-            }
-            Some((set, result)) = edited_rx.recv() => {
-                core.param_set_done(&set, result, Instant::now());
-            }
-            Some((bus, event)) = event_rx.recv() => {
-                tracing::info!(bus = %buses.handles[bus].name(), "{event}");
-                if let Some(e) = bridge_event(&cfg, &buses, bus, &event) {
-                    core.event(e, Instant::now());
-                }
-            }
-            _ = sleep_until(deadline) => {
-                let now = Instant::now();
-                let (reports, _) = buses.reports(&cfg);
-                core.handle_timeout(now, &reports);
-            }
+            Some((link, header, msg)) = self.messages.recv() => Input::Message(link, header, msg),
+            Some((set, result)) = self.edited.recv() => Input::Edited(set, result),
+            Some((bus, event)) = self.bus_events.recv() => Input::BusEvent(bus, event),
+            _ = sleep_until(deadline) => Input::Timeout,
         }
-        while let Some(set) = core.poll_param_set() {
-            if let Err(mpsc::error::SendError(set)) = edit_tx.send(set) {
-                core.param_set_done(
+    }
+
+    /// Parameter changes the core accepted go to the mapping file's writer.
+    fn pass_param_sets(&mut self) {
+        while let Some(set) = self.core.poll_param_set() {
+            if let Err(mpsc::error::SendError(set)) = self.edits.send(set) {
+                self.core.param_set_done(
                     &set,
                     Err("no mapping file to change".into()),
                     Instant::now(),
                 );
             }
         }
-        // One message's goals leave in one long packet per bus.
-        while let Some((servo, goal)) = core.poll_command() {
-            if let Some((bus, id)) = buses.servo_at.get(servo) {
-                pending_goals[*bus].push((*id, goal));
+    }
+
+    /// The goals of the input just handled, one call per bus: an output message that carried
+    /// a bus's servos is a tick of that bus's rhythm even when it changed no goal, and its
+    /// goals leave in one long packet.
+    fn pass_goals(&mut self) {
+        let mut per_bus: Vec<Vec<(ServoId, crate::bus::Goal)>> =
+            vec![Vec::new(); self.buses.handles.len()];
+        let mut ticked = vec![false; self.buses.handles.len()];
+        for servo in self.core.take_output_ticks() {
+            if let Some((bus, _)) = self.buses.servo_at.get(servo) {
+                ticked[*bus] = true;
             }
-            if let Some(r) = &record {
+        }
+        while let Some((servo, goal)) = self.core.poll_command() {
+            if let Some((bus, id)) = self.buses.servo_at.get(servo) {
+                per_bus[*bus].push((*id, goal));
+            }
+            if let Some(r) = &self.record {
                 r.goal(servo, goal);
             }
         }
-        for (bus, goals) in pending_goals.iter_mut().enumerate() {
-            if !goals.is_empty() {
-                buses.handles[bus].set_goals(goals.drain(..));
+        for (bus, goals) in per_bus.into_iter().enumerate() {
+            let handle = &self.buses.handles[bus];
+            if ticked[bus] {
+                handle.output_message(goals);
+            } else if !goals.is_empty() {
+                handle.set_goals(goals);
             }
-        }
-        if let Some(header) = core.header() {
-            while let Some(out) = core.poll_message() {
-                if let MavMessage::STATUSTEXT(t) = &out.message {
-                    let text = t.text.to_str().unwrap_or("").to_string();
-                    if let Some(r) = &record {
-                        r.event(None, t.severity as u8, text.clone());
-                    }
-                    if texts.len() == VIEW_TEXTS {
-                        texts.pop_front();
-                    }
-                    texts.push_back(text);
-                }
-                let header = match out.sender {
-                    Some((system, component)) => MavHeader {
-                        system_id: u32::from(system),
-                        component_id: component,
-                        sequence: 0,
-                    },
-                    None => header,
-                };
-                for (i, link) in links.iter().enumerate() {
-                    if out.link.is_none_or(|l| l == i)
-                        && let Err(e) = send(link, i, signing.as_ref(), &header, &out.message).await
-                    {
-                        tracing::debug!(link = i, "MAVLink send: {e}");
-                    }
-                }
-            }
-        }
-        for note in core.take_notes() {
-            tracing::warn!("{note}");
-        }
-        if let Some(view) = view.as_ref().filter(|_| view_at.elapsed() >= VIEW_PERIOD) {
-            view_at = Instant::now();
-            let statuses: Vec<BusStatus> = buses.handles.iter().map(BusHandle::status).collect();
-            let (_, servos) = buses.reports_of(&cfg, &statuses);
-            view.send_replace(BridgeView {
-                servos,
-                autopilot: core.autopilot(),
-                failsafe: core.in_failsafe(),
-                output_rate_hz: core.requested_rate_hz(),
-                buses: statuses,
-                texts: texts.iter().cloned().collect(),
-                signing_drops: signing
-                    .as_ref()
-                    .map(|s| s.lock().drops())
-                    .unwrap_or_default(),
-            });
         }
     }
 
-    let leave = match cfg.bridge.on_exit {
-        ExitAction::Hold => ShutdownForce::AsIs,
-        ExitAction::Off => ShutdownForce::Off,
-        ExitAction::Brake => ShutdownForce::Brake,
-    };
-    tracing::info!(?leave, "stopping: closing the buses");
-    for bus in &buses.handles {
-        bus.shutdown(leave).await;
+    /// The core's messages go to the links' outboxes (never waiting for a link).
+    fn pass_messages(&mut self) {
+        let Some(header) = self.core.header() else {
+            return;
+        };
+        while let Some(out) = self.core.poll_message() {
+            if let MavMessage::STATUSTEXT(t) = &out.message {
+                let text = t.text.to_str().unwrap_or("").to_string();
+                if let Some(r) = &self.record {
+                    r.event(None, t.severity as u8, text.clone());
+                }
+                if self.texts.len() == VIEW_TEXTS {
+                    self.texts.pop_front();
+                }
+                self.texts.push_back(text);
+            }
+            let header = match out.sender {
+                Some((system, component)) => MavHeader {
+                    system_id: u32::from(system),
+                    component_id: component,
+                    sequence: 0,
+                },
+                None => header,
+            };
+            for (i, writer) in self.writers.iter().enumerate() {
+                if out.link.is_none_or(|l| l == i) {
+                    writer.queue(header, out.message.clone());
+                }
+            }
+        }
     }
-    for r in readers {
-        r.abort();
+
+    /// Refresh the view for the live table and the tests, at most every [`VIEW_PERIOD`].
+    fn refresh_view(&mut self) {
+        let Some(view) = self
+            .view
+            .as_ref()
+            .filter(|_| self.view_at.elapsed() >= VIEW_PERIOD)
+        else {
+            return;
+        };
+        self.view_at = Instant::now();
+        let statuses: Vec<BusStatus> = self.buses.handles.iter().map(BusHandle::status).collect();
+        let (_, servos) = self.buses.reports_of(&self.cfg, &statuses);
+        view.send_replace(BridgeView {
+            servos,
+            autopilot: self.core.autopilot(),
+            failsafe: self.core.in_failsafe(),
+            output_rate_hz: self.core.requested_rate_hz(),
+            buses: statuses,
+            texts: self.texts.iter().cloned().collect(),
+            signing_drops: self
+                .signing
+                .as_ref()
+                .map(|s| s.lock().drops())
+                .unwrap_or_default(),
+            send_drops: self.writers.iter().map(LinkWriter::dropped).collect(),
+        });
     }
-    if let Some(r) = record {
-        let path = r.path();
-        let stats = r.finish();
-        tracing::info!(file = ?path, ?stats, "flight record closed");
+
+    /// Leave the servos as the mapping says, stop the tasks, close the flight record.
+    async fn stop(self) {
+        let leave = match self.cfg.bridge.on_exit {
+            ExitAction::Hold => ShutdownForce::AsIs,
+            ExitAction::Off => ShutdownForce::Off,
+            ExitAction::Brake => ShutdownForce::Brake,
+        };
+        tracing::info!(?leave, "stopping: closing the buses");
+        for bus in &self.buses.handles {
+            bus.shutdown(leave).await;
+        }
+        for task in self.tasks {
+            task.abort();
+        }
+        let unsent: usize = self.writers.iter().map(LinkWriter::waiting).sum();
+        if unsent > 0 {
+            tracing::debug!("{unsent} MAVLink messages left unsent at the stop");
+        }
+        if let Some(r) = self.record {
+            let path = r.path();
+            let stats = r.finish();
+            tracing::info!(file = ?path, ?stats, "flight record closed");
+        }
     }
-    Ok(())
+}
+
+/// A task that passes bus `i`'s events to the loop (and to the flight record).
+fn forward_bus_events(
+    cfg: &Config,
+    i: usize,
+    bus: &BusHandle,
+    record: Option<RecordHandle>,
+    to_loop: mpsc::UnboundedSender<(usize, BusEvent)>,
+) -> tokio::task::JoinHandle<()> {
+    let mut events = bus.events();
+    let feed = record.map(|r| StatusFeed::new(r, &RecordServo::from_config(cfg)));
+    let bus_name = bus.name().to_string();
+    tokio::spawn(async move {
+        loop {
+            match events.recv().await {
+                Ok(e) => {
+                    if let Some(feed) = &feed {
+                        feed.bus_event(&bus_name, &e);
+                    }
+                    if to_loop.send((i, e)).is_err() {
+                        return;
+                    }
+                }
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                    tracing::warn!(bus = i, "{n} bus events dropped");
+                }
+                Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+            }
+        }
+    })
+}
+
+/// Sleep until `deadline`; with none, forever (until another branch of a `select!` wins).
+async fn sleep_until(deadline: Option<tokio::time::Instant>) {
+    match deadline {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
+    }
 }
 
 #[cfg(test)]

@@ -359,6 +359,15 @@ impl Rig {
         self.m.set_goal(id(n), goal, self.t);
     }
 
+    /// An output message of the autopilot at the current time, with the goals it changed
+    /// (none: it repeated the last ones).
+    fn message(&mut self, goals: &[(u8, Goal)]) {
+        self.m.output_message(self.t);
+        for &(n, goal) in goals {
+            self.set_goal(n, goal);
+        }
+    }
+
     fn health(&self, n: u8) -> Health {
         self.m.status().servo(id(n)).unwrap().health
     }
@@ -1189,9 +1198,42 @@ fn a_corrupted_reply_is_counted_and_times_out() {
     .to_bytes();
     let last = reply.len() - 1;
     reply[last] ^= 0x55;
-    rig.m.handle_input(&reply, t0 + ms(4));
+    // Its first half leaves the request waiting; the whole garbled reply ends it at once:
+    // the servo has stopped talking, so the bus is free as after a clean reply.
+    let (a, b) = reply.split_at(reply.len() / 2);
+    rig.m.handle_input(a, t0 + ms(3));
     assert!(rig.m.reply_pending());
+    rig.m.handle_input(b, t0 + ms(4));
+    assert!(!rig.m.reply_pending());
     assert_eq!(rig.m.counters().bad_sums, 1);
+    assert_eq!(rig.m.counters().timeouts, 1);
+    assert!(
+        rig.m.poll_transmit(t0 + ms(4)).is_some(),
+        "the next request"
+    );
+}
+
+#[test]
+fn a_garbled_reply_from_another_servo_or_of_another_length_keeps_the_request_waiting() {
+    let mut rig = Rig::with_ids(&[1, 2]);
+    let t0 = rig.t0;
+    let _ = rig.m.poll_transmit(t0).unwrap();
+    let garbled = |id: u8, length: usize| {
+        let mut reply = ReturnPacket {
+            id,
+            flags: ReplyFlags(0),
+            address: 0,
+            data: vec![0; length],
+        }
+        .to_bytes();
+        let last = reply.len() - 1;
+        reply[last] ^= 0x55;
+        reply
+    };
+    rig.m.handle_input(&garbled(2, 30), t0 + ms(3));
+    rig.m.handle_input(&garbled(1, 12), t0 + ms(3));
+    assert!(rig.m.reply_pending(), "the awaited reply may still come");
+    assert_eq!(rig.m.counters().bad_sums, 2);
     let deadline = rig.m.poll_timeout().unwrap();
     rig.m.handle_timeout(deadline);
     assert!(!rig.m.reply_pending());
@@ -1377,9 +1419,10 @@ fn periodic_goals_find_the_bus_free_and_the_time_left_is_read() {
     let t_start = rig.t;
     for k in 0..100i16 {
         let at = rig.t;
-        for n in 1..=4u8 {
-            rig.set_goal(n, Goal::Position(MmCenti(k * 10 + i16::from(n))));
-        }
+        let goals: Vec<_> = (1..=4u8)
+            .map(|n| (n, Goal::Position(MmCenti(k * 10 + i16::from(n)))))
+            .collect();
+        rig.message(&goals);
         let from = rig.log.len();
         rig.run(period);
         let sent = rig.sent_since(from);
@@ -1525,16 +1568,36 @@ fn a_position_read_replaces_only_the_position_of_the_latest_telemetry() {
     // Every period the rods stand somewhere else and draw another current: a value read tells
     // the period it was read in.
     let mut periods = Vec::new();
-    for k in 0..40i16 {
+    let position_read = |rig: &Rig, from: usize| {
+        rig.sent_since(from)
+            .iter()
+            .any(|s| matches!(s.tx.kind, TxKind::PositionPoll(_)))
+    };
+    'stream: for k in 0..80i16 {
         periods.push(rig.t);
         for n in 1..=4u8 {
             rig.servo(n).position = 2000 + k;
             rig.servo(n).load = 100 + k as u16;
-            rig.set_goal(n, Goal::Position(MmCenti(k * 10 + i16::from(n))));
         }
+        let goals: Vec<_> = (1..=4u8)
+            .map(|n| (n, Goal::Position(MmCenti(k * 10 + i16::from(n)))))
+            .collect();
+        rig.message(&goals);
         // At 55.6 Hz the time left before each goal often fits a position read, not more.
-        rig.run(ms(18));
+        if k < 40 {
+            rig.run(ms(18));
+            continue;
+        }
+        // Then stop at the first position read, once its reply is in.
+        let (from, end) = (rig.log.len(), rig.t + ms(18));
+        while rig.t < end {
+            rig.run(us(50));
+            if position_read(&rig, from) {
+                break 'stream;
+            }
+        }
     }
+    rig.settle();
     let period_of = |t: Instant| periods.iter().rposition(|p| *p <= t).unwrap() as i16;
     // The fake servo answers with the values of the instant a request is written.
     let last_request = |n: u8, kinds: &[fn(ServoId) -> TxKind]| {
@@ -1710,39 +1773,38 @@ fn run_autopilot(
         }
     }
     arrivals.sort_by_key(|a| a.0);
-    let mut waits = Vec::new();
-    let mut value = 0i16;
-    for (at, k, m) in arrivals {
+    let mut messages_at = Vec::new();
+    for (n, (at, k, m)) in arrivals.into_iter().enumerate() {
+        let value = (n % 2000) as i16 + 1;
         rig.run(at.saturating_duration_since(rig.t));
         let in_flight = rig
             .m
             .reply_pending()
             .then(|| rig.log.last().map(|s| s.tx.kind))
             .flatten();
-        let from = rig.log.len();
-        value += 1;
-        for &n in messages[m].0 {
-            rig.set_goal(n, Goal::Position(MmCenti(value % 2000)));
-        }
-        rig.run(us(10));
-        while !rig
-            .sent_since(from)
+        let goals: Vec<_> = messages[m]
+            .0
             .iter()
-            .any(|s| s.tx.kind == TxKind::Command)
-        {
-            rig.run(us(50));
-        }
-        let frame = rig
-            .sent_since(from)
-            .iter()
-            .find(|s| s.tx.kind == TxKind::Command)
-            .unwrap()
-            .at;
-        if k >= 20 {
-            waits.push((frame - at, in_flight));
-        }
+            .map(|&n| (n, Goal::Position(MmCenti(value))))
+            .collect();
+        rig.message(&goals);
+        messages_at.push((rig.t, rig.log.len(), k, in_flight));
     }
-    waits
+    rig.run(period);
+    // Each message's wait: until the first frame handed out at or after it.
+    messages_at
+        .into_iter()
+        .filter(|(_, _, k, _)| *k >= 20)
+        .map(|(at, from, _, in_flight)| {
+            let frame = rig
+                .sent_since(from)
+                .iter()
+                .find(|s| s.tx.kind == TxKind::Command)
+                .expect("a frame after every message")
+                .at;
+            (frame - at, in_flight)
+        })
+        .collect()
 }
 
 const PORT0: &[u8] = &[1, 2, 3];
@@ -1752,11 +1814,18 @@ const PORT1: &[u8] = &[4];
 fn no_goal_of_a_tick_waits_behind_a_poll_started_after_the_tick_began() {
     // Ports 0 and 1 of each tick, 0.1 ms apart; a command 1.5 ms after port 0 in every tenth.
     let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+    let frames_before = rig.m.counters().command_frames;
     let waits = run_autopilot(&mut rig, 120, |_, _| 0, &[(PORT0, us(0)), (PORT1, us(100))]);
     let behind_poll: Vec<_> = waits.iter().filter(|w| w.1.is_some()).collect();
     assert!(behind_poll.is_empty(), "{behind_poll:?}");
-    // Port 0's frame leaves at once; port 1's waits only for port 0's frame on the wire.
-    assert!(waits.iter().all(|w| w.0 == Duration::ZERO), "{waits:?}");
+    // One tick, one frame: port 0's goals wait the 0.1 ms for port 1's (known from the ticks
+    // before), which leave with them at once, instead of 1.5 ms behind a frame of their own.
+    let frames = rig.m.counters().command_frames - frames_before;
+    assert!(frames <= 121, "{frames} frames for 120 ticks");
+    for pair in waits.chunks(2) {
+        assert_eq!(pair[0].0, us(100), "port 0: {pair:?}");
+        assert_eq!(pair[1].0, Duration::ZERO, "port 1: {pair:?}");
+    }
     let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
     let waits = run_autopilot(
         &mut rig,
@@ -2236,3 +2305,5 @@ fn a_temperature_event_whose_read_never_comes_goes_out_after_200_ms() {
     assert_eq!(servo.telemetry.unwrap().present_temperature.0, 30);
     assert!(servo.age.unwrap() > rig.t.saturating_duration_since(flagged_at));
 }
+
+mod ticks;

@@ -1,0 +1,207 @@
+//! A link whose peer stops reading holds neither the other link nor a goal. The ground station
+//! is a TCP peer (as MAVProxy or a telemetry radio's bridge can be) that connects, reads
+//! parameters faster than it could take the answers, and reads nothing for 10 s; meanwhile the
+//! test, as the autopilot, changes its outputs every 250 ms on the other link, and each change
+//! must reach the simulated servo. What the ground-station link could not take is dropped, oldest
+//! telemetry first, and counted in the view; once the peer reads again it hears the bridge.
+
+mod common;
+
+use common::{Chain, ChainOptions};
+use mavlink::dialects::common::*;
+use mavlink::{AsyncMavConnection, MavHeader};
+use std::io::Read;
+use std::net::TcpListener;
+use std::os::fd::AsRawFd;
+use std::time::{Duration, Instant};
+
+const MAPPING: &str = r#"
+[mavlink]
+connection = "udpin:127.0.0.1:14560"
+output_rate_hz = 50
+
+[telemetry]
+rate_hz = 50
+
+[[bus]]
+name = "wing"
+port = "sim"
+turnaround_ms = 20
+
+[[servo]]
+name = "aileron"
+bus = "wing"
+id = 1
+channel = 1
+
+[[servo]]
+name = "elevator"
+bus = "wing"
+id = 2
+channel = 2
+"#;
+
+const AUTOPILOT: MavHeader = MavHeader {
+    system_id: 1,
+    component_id: 1,
+    sequence: 0,
+};
+
+/// A listening socket whose connections have a small receive buffer, so that a peer that
+/// does not read fills up within a second.
+fn small_buffer_listener() -> TcpListener {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let size: libc::c_int = 4096;
+    // SAFETY: a valid socket and a c_int option value of the size given.
+    let r = unsafe {
+        libc::setsockopt(
+            listener.as_raw_fd(),
+            libc::SOL_SOCKET,
+            libc::SO_RCVBUF,
+            (&size as *const libc::c_int).cast(),
+            std::mem::size_of::<libc::c_int>() as libc::socklen_t,
+        )
+    };
+    assert_eq!(r, 0, "SO_RCVBUF");
+    listener
+}
+
+fn outputs(us: u16) -> MavMessage {
+    MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
+        servo1_raw: us,
+        servo2_raw: 1520,
+        ..Default::default()
+    })
+}
+
+/// A read of parameter `index`, answered at once with its PARAM_VALUE on the link it came in
+/// on (the bridge's system ID is the autopilot's; component 0 asks every component).
+fn param_read(index: i16) -> MavMessage {
+    MavMessage::PARAM_REQUEST_READ(PARAM_REQUEST_READ_DATA {
+        target_system: 1,
+        target_component: 0,
+        param_index: index,
+        ..Default::default()
+    })
+}
+
+/// Parameter reads the ground station sends per autopilot tick: 10,000 answers a second,
+/// 370 kB/s, more than a socket's buffers take in the 10 s the peer reads nothing.
+const READS_PER_TICK: usize = 200;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_ground_station_that_stops_reading_holds_no_goal() {
+    let listener = small_buffer_listener();
+    let port = listener.local_addr().unwrap().port();
+    let chain = Chain::start_opts(
+        MAPPING,
+        ChainOptions {
+            gcs_address: Some(format!("tcpout:127.0.0.1:{port}")),
+            ..ChainOptions::default()
+        },
+    )
+    .await;
+    let (mut station, _) = tokio::task::spawn_blocking(move || listener.accept())
+        .await
+        .unwrap()
+        .expect("the bridge connects to the ground station");
+    let ap =
+        mavlink::connect_async::<MavMessage>(&format!("udpout:127.0.0.1:{}", chain.autopilot_port))
+            .await
+            .unwrap();
+    let heartbeat = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        mavtype: MavType::MAV_TYPE_FIXED_WING,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+        ..Default::default()
+    });
+    ap.send(&AUTOPILOT, &heartbeat).await.unwrap();
+    let sim = chain.sims[0].handle();
+
+    // 10 s of outputs at 50 Hz, the value of channel 1 changing every 250 ms between +10 and
+    // −10 mm; the ground station asks for parameters and reads nothing.
+    let start = Instant::now();
+    let mut tick = tokio::time::interval(Duration::from_millis(20));
+    let mut changes = 0u32;
+    let mut awaited: Option<(f32, Instant)> = None;
+    let mut latencies = Vec::new();
+    let mut k = 0u32;
+    while start.elapsed() < Duration::from_secs(10) {
+        tick.tick().await;
+        let step = k / 12;
+        let (us, mm) = if step.is_multiple_of(2) {
+            (1760, 10.0)
+        } else {
+            (1280, -10.0)
+        };
+        if k.is_multiple_of(12) {
+            changes += 1;
+            if let Some((mm, since)) = awaited.take() {
+                panic!(
+                    "the goal {mm} mm sent {:?} ago never reached the servo (change {changes})",
+                    since.elapsed()
+                );
+            }
+            awaited = Some((mm, Instant::now()));
+        }
+        ap.send(&AUTOPILOT, &outputs(us)).await.unwrap();
+        if k.is_multiple_of(50) {
+            ap.send(&AUTOPILOT, &heartbeat).await.unwrap();
+        }
+        let mut frames = Vec::new();
+        for n in 0..READS_PER_TICK {
+            let header = MavHeader {
+                system_id: 255,
+                component_id: 190,
+                sequence: n as u8,
+            };
+            mavlink::write_v2_msg(&mut frames, header, &param_read((n % 30) as i16)).unwrap();
+        }
+        // The bridge reads what it is sent, though its peer does not read what it sends.
+        std::io::Write::write_all(&mut station, &frames).unwrap();
+        if let Some((mm, since)) = awaited
+            && sim
+                .snapshot(1)
+                .is_some_and(|s| (s.goal_mm - mm).abs() < 0.05)
+        {
+            latencies.push(since.elapsed());
+            awaited = None;
+        }
+        k += 1;
+    }
+    latencies.sort();
+    println!(
+        "{changes} changes, {} reached the servo; slowest {:?}",
+        latencies.len(),
+        latencies.last()
+    );
+    assert!(
+        latencies.len() + 1 >= changes as usize,
+        "{} of {changes} changes reached the servo",
+        latencies.len()
+    );
+    let drops = chain.view.borrow().send_drops.clone();
+
+    assert_eq!(drops.len(), 2, "{drops:?}");
+    assert_eq!(drops[0], 0, "the autopilot's link dropped nothing");
+    assert!(
+        drops[1] > 0,
+        "the stalled link's drops are counted: {drops:?}"
+    );
+
+    // The peer reads again: the bridge's messages come through.
+    station.set_nonblocking(false).unwrap();
+    station
+        .set_read_timeout(Some(Duration::from_secs(5)))
+        .unwrap();
+    let mut buf = vec![0u8; 1 << 20];
+    let mut heard = 0;
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while heard < 64 * 1024 && Instant::now() < deadline {
+        match station.read(&mut buf) {
+            Ok(0) | Err(_) => break,
+            Ok(n) => heard += n,
+        }
+    }
+    assert!(heard > 0, "nothing heard once the peer read again");
+    chain.stop().await;
+}
