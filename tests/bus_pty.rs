@@ -91,8 +91,29 @@ async fn servos_reach_their_goals_and_telemetry_is_published() {
     assert!(bus.is_finished());
 }
 
+/// Attempts at a goal stream the simulator keeps time through: only such a one is judged
+/// strictly.
+const ATTEMPTS: usize = 3;
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_line_is_never_talked_over_and_every_request_is_answered() {
+    for attempt in 1..=ATTEMPTS {
+        if goal_stream_with_telemetry().await {
+            return;
+        }
+        println!(
+            "attempt {attempt}: the simulator ran late: not judged (no talk-over, every request \
+             answered); only that the bridge wrote over no reply it waited for"
+        );
+    }
+    panic!(
+        "the simulator ran late in each of {ATTEMPTS} attempts: the line was never judged strictly"
+    );
+}
+
+/// One goal stream with telemetry polled in its gaps; whether the simulator kept time (and the
+/// strict checks ran).
+async fn goal_stream_with_telemetry() -> bool {
     let ids = [1, 2, 3];
     let sim = spawn_sim(sim_config(&ids, 460_800));
     let bus = spawn_bus(bus_config(&ids, BaudRate::B460800), sim.path());
@@ -124,7 +145,8 @@ async fn the_line_is_never_talked_over_and_every_request_is_answered() {
     // kept time every poll is answered: at least 20 replies per servo during the 500 goal
     // messages (≈ 90 per servo on an idle machine). Where it ran late, its servos answer late
     // or not at all and the bridge's answer to missing replies is not this test's subject:
-    // every servo must still have been polled during the stream.
+    // every servo must still have been polled during the stream, and the attempt is not
+    // judged (the caller tries again).
     for (s, (replies, timeouts)) in st.servos.iter().zip(&before) {
         let answered = s.telemetry_count - replies;
         let polled = answered + (s.timeouts - timeouts);
@@ -149,6 +171,7 @@ async fn the_line_is_never_talked_over_and_every_request_is_answered() {
         "every goal sent, superseded or unchanged: {c:?}"
     );
     bus.shutdown(ShutdownForce::AsIs).await;
+    stats.handed_late == 0
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -38,6 +38,14 @@ fn dir(name: &str) -> PathBuf {
     dir
 }
 
+/// The first run of 8 characters of `key` that `shown` holds: a leaked prefix or piece of a
+/// key is as bad as the whole.
+fn leaked<'k>(shown: &str, key: &'k str) -> Option<&'k str> {
+    (0..=key.len().saturating_sub(8))
+        .map(|i| &key[i..i + 8])
+        .find(|run| shown.contains(run))
+}
+
 /// The refusal of `text`: on the line holding `needle`, about `key`, containing `reason`.
 #[track_caller]
 fn refused(text: &str, needle: &str, key: &str, reason: &str) -> String {
@@ -138,7 +146,7 @@ fn bad_keys_are_refused_with_their_line_and_without_the_key() {
         "signing_key",
         "is 60 characters long",
     );
-    assert!(!m.contains(short), "the key is quoted: {m}");
+    assert_eq!(leaked(&m, short), None, "the key is quoted: {m}");
     let bad = format!("{}zz", &HEX[..62]);
     let m = refused(
         &mapping("udpin:127.0.0.1:1", &format!("signing_key = \"{bad}\"")),
@@ -146,7 +154,7 @@ fn bad_keys_are_refused_with_their_line_and_without_the_key() {
         "signing_key",
         "not a hex digit",
     );
-    assert!(!m.contains(&bad), "the key is quoted: {m}");
+    assert_eq!(leaked(&m, &bad), None, "the key is quoted: {m}");
     refused(
         &mapping("udpin:127.0.0.1:1", "signing_passphrase = \"\""),
         "signing_passphrase",
@@ -220,10 +228,7 @@ fn check_shows_where_the_key_came_from_never_the_key() {
     );
     assert!(stdout.contains("plane.toml.signing-timestamp"), "{stdout}");
     for shown in [&stdout, &stderr] {
-        assert!(
-            !shown.contains(HEX) && !shown.contains(&HEX[..16]),
-            "{shown}"
-        );
+        assert_eq!(leaked(shown, HEX), None, "{shown}");
     }
     assert!(!stdout.contains("signing is off"), "{stdout}");
     let _ = std::fs::remove_dir_all(d);

@@ -251,23 +251,43 @@ m.mav.param_request_read_send(1, 140, b"S2_CHAN", -1)
 got = values_until(1.0, lambda v: v.param_id == "S2_CHAN")
 print("read", [(v.param_id, v.param_value) for v in got if v.get_type() == "PARAM_VALUE"])
 
-def set_param(name, value, ptype=mav.MAV_PARAM_TYPE_REAL32):
+def answered(name, text):
+    """The set is answered: the PARAM_VALUE of `name` is in (unless it names no parameter),
+    and the STATUSTEXT saying why, when `text` says one comes."""
+    def done(got):
+        value = any(v.get_type() == "PARAM_VALUE" and v.param_id == name for v in got)
+        said = any(v.get_type() == "STATUSTEXT" and (v.text.startswith(name) or "no parameter" in v.text) for v in got)
+        return (value or text == "only") and (said or not text)
+    return done
+
+def set_param(name, value, ptype, text):
     m.mav.param_set_send(1, 140, name.encode(), value, ptype)
-    got = values_until(0.7)
+    # An accepted set is answered once the mapping file is saved (two fsyncs): no quiet time
+    # stands for that, so wait for the answer itself, up to a deadline.
+    done = answered(name, text)
+    got = []
+    deadline = min(time.time() + 10, end)
+    while time.time() < deadline and not done(got):
+        msg = m.recv_match(type=["PARAM_VALUE", "STATUSTEXT"], blocking=True, timeout=0.1)
+        if msg is not None and msg.get_srcComponent() == 140:
+            got.append(msg)
+    if not done(got):
+        print("unanswered", name, value)
     vals = [(v.param_id, v.param_value) for v in got if v.get_type() == "PARAM_VALUE"]
     texts = [v.text for v in got if v.get_type() == "STATUSTEXT" and v.text.startswith(name)]
     texts += [v.text for v in got if v.get_type() == "STATUSTEXT" and "no parameter" in v.text]
     return vals, texts
 
-for name, value, ptype in [
-    ("S1_PWM_TRIM", 1500.0, mav.MAV_PARAM_TYPE_REAL32),
-    ("S1_PWM_TRIM", 3000.0, mav.MAV_PARAM_TYPE_REAL32),
-    ("S1_PWM_TRIM", float("nan"), mav.MAV_PARAM_TYPE_REAL32),
-    ("S1_PWM_TRIM", 1490.0, mav.MAV_PARAM_TYPE_INT32),
-    ("S2_ID", 9.0, mav.MAV_PARAM_TYPE_REAL32),
-    ("NO_SUCH_PARAM", 1.0, mav.MAV_PARAM_TYPE_REAL32),
+# The last field: whether a STATUSTEXT says why ("only": nothing but the text).
+for name, value, ptype, text in [
+    ("S1_PWM_TRIM", 1500.0, mav.MAV_PARAM_TYPE_REAL32, False),
+    ("S1_PWM_TRIM", 3000.0, mav.MAV_PARAM_TYPE_REAL32, True),
+    ("S1_PWM_TRIM", float("nan"), mav.MAV_PARAM_TYPE_REAL32, True),
+    ("S1_PWM_TRIM", 1490.0, mav.MAV_PARAM_TYPE_INT32, True),
+    ("S2_ID", 9.0, mav.MAV_PARAM_TYPE_REAL32, True),
+    ("NO_SUCH_PARAM", 1.0, mav.MAV_PARAM_TYPE_REAL32, "only"),
 ]:
-    vals, texts = set_param(name, value, ptype)
+    vals, texts = set_param(name, value, ptype, text)
     print("set", name, value, ptype, vals, texts)
 
 # A flood of list requests: the bridge answers, at most one pass queued per link, and lives.
@@ -341,6 +361,7 @@ async fn a_ground_station_reads_and_sets_parameters_and_the_file_keeps_them() {
     assert_eq!(line("value BRG_FS_MS"), "value BRG_FS_MS 500.0");
     assert_eq!(line("value S2_ID"), "value S2_ID 2.0");
     assert_eq!(line("read "), "read [('S2_CHAN', 4.0)]", "{stdout}");
+    assert!(!stdout.contains("unanswered"), "{stdout}");
     assert_eq!(
         line("set S1_PWM_TRIM 1500.0"),
         "set S1_PWM_TRIM 1500.0 9 [('S1_PWM_TRIM', 1500.0)] []"

@@ -255,7 +255,18 @@ fn the_bridge_says_what_it_is_when_asked() {
         v.capabilities
             .contains(MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2)
     );
-    assert_eq!(v.flight_sw_version >> 8, 0x00_01_00, "0.1.0");
+    // major, minor, patch of the package, one byte each, then 255: an official release.
+    let version = env!("CARGO_PKG_VERSION");
+    let expected = version
+        .split(['.', '-', '+'])
+        .take(3)
+        .fold(0u32, |v, part| (v << 8) | part.parse::<u32>().unwrap());
+    assert_eq!(
+        v.flight_sw_version,
+        (expected << 8) | 255,
+        "{:#010x} for {version}",
+        v.flight_sw_version
+    );
 
     b.send(GCS, ask(396.0));
     let (out, _) = b.drain();

@@ -19,9 +19,12 @@ mod common;
 use common::python::python;
 use common::{Chain, ChainOptions, free_udp_port};
 use lj9da_bridge::runtime::BridgeView;
+use std::collections::HashMap;
+use std::io::{BufRead, BufReader, Read};
 use std::path::PathBuf;
-use std::process::Command;
-use std::time::Duration;
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 const KEY_HEX: &str = "5e1f0a2b3c4d5e6f708192a3b4c5d6e7f8091a2b3c4d5e6f708192a3b4c5d6e7";
 const OTHER_KEY_HEX: &str = "0000000000000000000000000000000000000000000000000000000000000001";
@@ -79,28 +82,133 @@ fn keyed(name: &str) -> (String, PathBuf) {
     mapping(&format!("signing_key = \"{KEY_HEX}\""), name)
 }
 
-/// Run the pymavlink `script` with `args` (at most 60 s) and return what it printed.
-async fn run_script(script: &'static str, args: Vec<String>, what: &str) -> String {
-    let python = tokio::task::spawn_blocking(python).await.unwrap();
-    let run = tokio::task::spawn_blocking(move || {
-        Command::new(&python)
+/// A pymavlink peer, running until [`Peer::stop`] closes its standard input (or the test ends
+/// and drops it), so that a test waits for what it needs, not for a fixed run.
+struct Peer {
+    what: String,
+    child: Child,
+    /// Everything it printed so far, and the counts of its latest `progress` line.
+    stdout: Arc<Mutex<(String, HashMap<String, u64>)>>,
+    stderr: Arc<Mutex<String>>,
+    readers: Vec<std::thread::JoinHandle<()>>,
+}
+
+impl Peer {
+    /// Start the pymavlink `script` with `args`; its first argument after the port is the most
+    /// seconds it may run (a bound for a test that hangs, never reached by one that passes).
+    async fn start(script: &'static str, args: Vec<String>, what: &str) -> Peer {
+        let python = tokio::task::spawn_blocking(python).await.unwrap();
+        let mut child = Command::new(&python)
             .arg("-c")
             .arg(script)
             .args(&args)
-            .output()
-    });
-    let out = tokio::time::timeout(Duration::from_secs(60), run)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap_or_else(|e| panic!("pymavlink {what} did not run: {e}"));
+        let stdout = Arc::new(Mutex::new((String::new(), HashMap::new())));
+        let stderr = Arc::new(Mutex::new(String::new()));
+        let out = child.stdout.take().unwrap();
+        let seen = stdout.clone();
+        let mut err = child.stderr.take().unwrap();
+        let said = stderr.clone();
+        let readers = vec![
+            std::thread::spawn(move || {
+                for line in BufReader::new(out).lines().map_while(Result::ok) {
+                    let mut seen = seen.lock().unwrap();
+                    if let Some(counts) = line.strip_prefix("progress ") {
+                        seen.1 = counts
+                            .split_whitespace()
+                            .filter_map(|kv| kv.split_once('='))
+                            .filter_map(|(k, v)| Some((k.to_string(), v.parse().ok()?)))
+                            .collect();
+                    }
+                    seen.0.push_str(&line);
+                    seen.0.push('\n');
+                }
+            }),
+            std::thread::spawn(move || {
+                let mut text = String::new();
+                let _ = err.read_to_string(&mut text);
+                *said.lock().unwrap() = text;
+            }),
+        ];
+        Peer {
+            what: what.to_string(),
+            child,
+            stdout,
+            stderr,
+            readers,
+        }
+    }
+
+    /// The count `name` of the peer's latest progress line (0 before it said any).
+    fn count(&self, name: &str) -> u64 {
+        self.stdout
+            .lock()
+            .unwrap()
+            .1
+            .get(name)
+            .copied()
+            .unwrap_or(0)
+    }
+
+    /// Wait (up to `timeout`, `what` in the failure) until `pred` holds of the peer and the
+    /// bridge's view.
+    async fn wait(
+        &self,
+        chain: &Chain,
+        what: &str,
+        timeout: Duration,
+        pred: impl Fn(&Peer, &BridgeView) -> bool,
+    ) {
+        let deadline = Instant::now() + timeout;
+        while !pred(self, &chain.view.borrow()) {
+            if Instant::now() >= deadline {
+                // Copied first: a panic holding the locks would poison them for the readers.
+                let said = self.stdout.lock().unwrap().0.clone();
+                let err = self.stderr.lock().unwrap().clone();
+                panic!(
+                    "timed out after {timeout:?} waiting for {what}: {} said:\n{said}{err}; {:#?}",
+                    self.what,
+                    *chain.view.borrow()
+                );
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
+    /// Tell the peer to stop (its standard input closes), and return what it printed.
+    async fn stop(mut self) -> String {
+        drop(self.child.stdin.take());
+        let what = self.what.clone();
+        let status = tokio::time::timeout(
+            Duration::from_secs(10),
+            tokio::task::spawn_blocking(move || {
+                let status = self.child.wait();
+                for reader in self.readers {
+                    let _ = reader.join();
+                }
+                (status, self.stdout, self.stderr)
+            }),
+        )
         .await
-        .unwrap_or_else(|_| panic!("pymavlink {what} did not finish in 60 s"))
-        .unwrap()
-        .unwrap_or_else(|e| panic!("pymavlink {what} did not run: {e}"));
-    assert!(
-        out.status.success(),
-        "{what} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
+        .unwrap_or_else(|_| panic!("pymavlink {what} did not stop in 10 s"))
+        .unwrap();
+        let (status, stdout, stderr) = status;
+        let status = status.unwrap();
+        assert!(
+            status.success(),
+            "{what} failed: {}",
+            stderr.lock().unwrap()
+        );
+        stdout.lock().unwrap().0.clone()
+    }
 }
+
+/// The most seconds a peer may run: a bound for a hung test only.
+const PEER_LIMIT: &str = "120";
 
 /// The value after `name` on the line starting with it.
 fn value(stdout: &str, name: &str) -> u64 {
@@ -115,7 +223,7 @@ fn value(stdout: &str, name: &str) -> u64 {
 /// (`passphrase <text>`, MAVProxy's `passphrase_to_key`), or none (`none`); unsigned messages are
 /// refused (`allow_unsigned_callback` returning False).
 const SIGNING_SETUP: &str = r#"
-import hashlib, os, sys, time
+import hashlib, os, sys, threading, time
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil
 
@@ -129,6 +237,24 @@ def setup(m, form, secret):
         key = bytes.fromhex(secret)
     m.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=lambda *args: False)
 
+# The test stops the script by closing its standard input.
+stopped = threading.Event()
+def watch_stdin():
+    sys.stdin.read()
+    stopped.set()
+threading.Thread(target=watch_stdin, daemon=True).start()
+
+def running(end):
+    return not stopped.is_set() and time.time() < end
+
+# What the test waits for: the counts, on a line of their own whenever one changes.
+said = {}
+def progress(**counts):
+    if counts != said:
+        said.clear()
+        said.update(counts)
+        print("progress", *(f"{k}={v}" for k, v in counts.items()), flush=True)
+
 def stats(m):
     s = m.mav.signing
     print("goodsig", s.goodsig_count)
@@ -137,7 +263,7 @@ def stats(m):
 "#;
 
 /// An autopilot (system 1, component 1) on the bridge's `udpin`: HEARTBEAT at 2 Hz and
-/// SERVO_OUTPUT_RAW at 20 Hz with channel 1 at 1900 µs for `seconds`; it counts the bridge's
+/// SERVO_OUTPUT_RAW at 20 Hz with channel 1 at 1900 µs until stopped; it counts the bridge's
 /// HEARTBEATs that its signing check let through.
 const AUTOPILOT: &str = r#"
 port, seconds, form, secret = int(sys.argv[1]), float(sys.argv[2]), sys.argv[3], sys.argv[4]
@@ -146,7 +272,7 @@ setup(m, form, secret)
 mav = mavutil.mavlink
 bridge_heartbeats, sent = 0, 0
 end, next_hb = time.time() + seconds, 0.0
-while time.time() < end:
+while running(end):
     now = time.time()
     if now >= next_hb:
         m.mav.heartbeat_send(mav.MAV_TYPE_FIXED_WING, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, mav.MAV_STATE_ACTIVE)
@@ -161,6 +287,7 @@ while time.time() < end:
         msg = m.recv_match(blocking=True, timeout=left)
         if msg is not None and msg.get_type() == "HEARTBEAT" and msg.get_srcComponent() == 140:
             bridge_heartbeats += 1
+    progress(bridge_heartbeats=bridge_heartbeats, goodsig=m.mav.signing.goodsig_count, badsig=m.mav.signing.badsig_count)
 print("sent", sent)
 print("bridge_heartbeats", bridge_heartbeats)
 # The latest signature timestamp accepted from the bridge (pymavlink keeps one per stream).
@@ -170,7 +297,7 @@ stats(m)
 "#;
 
 /// A ground station on the bridge's `gcs` output: it waits for the bridge's HEARTBEAT, sends it
-/// MAV_CMD_DO_SET_SERVO until acknowledged (or `seconds` pass), and counts what it accepted.
+/// MAV_CMD_DO_SET_SERVO until acknowledged, and counts what it accepted, until stopped.
 const GROUND_STATION: &str = r#"
 port, seconds, form, secret = int(sys.argv[1]), float(sys.argv[2]), sys.argv[3], sys.argv[4]
 m = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="common", source_system=255, source_component=190)
@@ -178,7 +305,8 @@ setup(m, form, secret)
 mav = mavutil.mavlink
 heartbeats, names, acks, commands = 0, set(), 0, 0
 end, next_command = time.time() + seconds, 0.0
-while time.time() < end:
+while running(end):
+    progress(heartbeats=heartbeats, named_values=len(names), commands=commands, acks=acks, badsig=m.mav.signing.badsig_count)
     msg = m.recv_match(blocking=True, timeout=0.1)
     now = time.time()
     # The bridge's address is known once anything arrived, accepted or not.
@@ -207,28 +335,37 @@ fn script(body: &'static str) -> &'static str {
     Box::leak(format!("{SIGNING_SETUP}{body}").into_boxed_str())
 }
 
-/// The bridge with the test playing the autopilot through pymavlink for `seconds`, signing as
-/// `form`/`secret` say; returns the script's output and the bridge's view at the end.
+/// The test playing the autopilot through pymavlink beside `chain`, signing as `form`/`secret`
+/// say.
+async fn autopilot(chain: &Chain, form: &str, secret: &str) -> Peer {
+    let args = vec![
+        chain.autopilot_port.to_string(),
+        PEER_LIMIT.into(),
+        form.to_string(),
+        secret.to_string(),
+    ];
+    Peer::start(script(AUTOPILOT), args, "autopilot").await
+}
+
+/// The bridge with the test playing the autopilot for `seconds` (what it refuses is counted
+/// over that span); returns the script's output and the bridge's view at the end.
 async fn autopilot_run(
     mapping: &str,
-    seconds: &str,
+    seconds: u64,
     form: &str,
     secret: &str,
 ) -> (String, BridgeView, Chain) {
     let chain = Chain::start_opts(mapping, ChainOptions::default()).await;
-    let args = vec![
-        chain.autopilot_port.to_string(),
-        seconds.to_string(),
-        form.to_string(),
-        secret.to_string(),
-    ];
-    let stdout = run_script(script(AUTOPILOT), args, "autopilot").await;
+    let peer = autopilot(&chain, form, secret).await;
+    tokio::time::sleep(Duration::from_secs(seconds)).await;
+    let stdout = peer.stop().await;
     let view = chain.view.borrow().clone();
     (stdout, view, chain)
 }
 
-/// As [`autopilot_run`] for 6 s, waiting (up to 30 s, `what` in the failure) meanwhile for one
-/// of the autopilot's outputs to set a goal; returns the script's output and the chain.
+/// The bridge with the test playing the autopilot until one of its outputs set a goal and it
+/// accepted a HEARTBEAT of the bridge (up to 30 s, `what` in the failure); returns the script's
+/// output and the chain.
 async fn obeyed_autopilot_run(
     mapping: &str,
     form: &str,
@@ -236,17 +373,12 @@ async fn obeyed_autopilot_run(
     what: &str,
 ) -> (String, Chain) {
     let chain = Chain::start_opts(mapping, ChainOptions::default()).await;
-    let args = vec![
-        chain.autopilot_port.to_string(),
-        "6".into(),
-        form.to_string(),
-        secret.to_string(),
-    ];
-    let script_run = tokio::spawn(run_script(script(AUTOPILOT), args, "autopilot"));
-    chain
-        .wait_view(what, Duration::from_secs(30), commanded)
-        .await;
-    (script_run.await.unwrap(), chain)
+    let peer = autopilot(&chain, form, secret).await;
+    peer.wait(&chain, what, Duration::from_secs(30), |p, v| {
+        commanded(v) && p.count("bridge_heartbeats") >= 1
+    })
+    .await;
+    (peer.stop().await, chain)
 }
 
 /// No servo was given a goal (none is, before the first accepted output).
@@ -287,7 +419,7 @@ async fn a_signed_autopilot_moves_the_servos_and_verifies_the_bridge() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_unsigned_autopilot_moves_nothing_and_is_counted() {
     let (text, ts) = keyed("unsigned-autopilot");
-    let (stdout, _, chain) = autopilot_run(&text, "3", "none", "-").await;
+    let (stdout, _, chain) = autopilot_run(&text, 3, "none", "-").await;
     let sent = value(&stdout, "sent");
     assert!(sent >= 10, "{stdout}");
     // The outputs and heartbeats are counted (at least half of them: UDP on a busy machine, and
@@ -312,7 +444,7 @@ async fn an_unsigned_autopilot_moves_nothing_and_is_counted() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_autopilot_with_another_key_moves_nothing_and_is_counted() {
     let (text, ts) = keyed("wrong-key-autopilot");
-    let (stdout, _, chain) = autopilot_run(&text, "3", "key", OTHER_KEY_HEX).await;
+    let (stdout, _, chain) = autopilot_run(&text, 3, "key", OTHER_KEY_HEX).await;
     let sent = value(&stdout, "sent");
     chain
         .wait_view("the drops to be counted", Duration::from_secs(10), |v| {
@@ -355,18 +487,27 @@ async fn the_passphrase_is_the_key_mavproxy_derives() {
 }
 
 /// The bridge with the simulated autopilot (signing with the mapping's key, as `sitl` runs it)
-/// and pymavlink as the ground station for `seconds`.
-async fn ground_station_run(form: &str, secret: &str, name: &str) -> (String, BridgeView) {
+/// and pymavlink as the ground station until `done` holds of it and the bridge's view (up to
+/// 30 s, `what` in the failure).
+async fn ground_station_run(
+    form: &str,
+    secret: &str,
+    name: &str,
+    what: &str,
+    done: impl Fn(&Peer, &BridgeView) -> bool,
+) -> (String, BridgeView) {
     let (text, ts) = keyed(name);
     let port = free_udp_port();
     let chain = Chain::start_with(&text, true, Some(port)).await;
     let args = vec![
         port.to_string(),
-        "6".into(),
+        PEER_LIMIT.into(),
         form.to_string(),
         secret.to_string(),
     ];
-    let stdout = run_script(script(GROUND_STATION), args, "ground station").await;
+    let peer = Peer::start(script(GROUND_STATION), args, "ground station").await;
+    peer.wait(&chain, what, Duration::from_secs(30), done).await;
+    let stdout = peer.stop().await;
     // The simulated autopilot signs with the mapping's key: its outputs are obeyed.
     chain
         .wait_view(
@@ -384,7 +525,14 @@ async fn ground_station_run(form: &str, secret: &str, name: &str) -> (String, Br
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_signed_ground_station_verifies_the_telemetry_and_is_answered() {
-    let (stdout, view) = ground_station_run("key", KEY_HEX, "signed-gcs").await;
+    let (stdout, view) = ground_station_run(
+        "key",
+        KEY_HEX,
+        "signed-gcs",
+        "heartbeats, telemetry and an answer",
+        |p, _| p.count("heartbeats") >= 2 && p.count("named_values") >= 4 && p.count("acks") >= 1,
+    )
+    .await;
     assert!(value(&stdout, "heartbeats") >= 2, "{stdout}");
     assert!(value(&stdout, "named_values") >= 4, "{stdout}");
     assert!(value(&stdout, "acks") >= 1, "{stdout}");
@@ -395,7 +543,16 @@ async fn a_signed_ground_station_verifies_the_telemetry_and_is_answered() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_ground_station_with_another_key_sees_nothing_and_is_not_answered() {
-    let (stdout, view) = ground_station_run("key", OTHER_KEY_HEX, "wrong-key-gcs").await;
+    // Done once the bridge's messages were refused and a command of the ground station was
+    // dropped: nothing it refused can be accepted later.
+    let (stdout, view) = ground_station_run(
+        "key",
+        OTHER_KEY_HEX,
+        "wrong-key-gcs",
+        "messages refused both ways",
+        |p, v| p.count("badsig") >= 2 && v.signing_drops[1].bad_signature >= 1,
+    )
+    .await;
     assert_eq!(value(&stdout, "heartbeats"), 0, "{stdout}");
     assert_eq!(value(&stdout, "named_values"), 0, "{stdout}");
     assert_eq!(value(&stdout, "acks"), 0, "{stdout}");
@@ -433,7 +590,15 @@ async fn a_restart_behind_the_stored_timestamp_signs_above_it() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_unsigned_ground_station_hears_the_bridge_but_is_not_answered() {
-    let (stdout, view) = ground_station_run("none", "-", "unsigned-gcs").await;
+    // Done once two commands were sent and dropped: a dropped command is never answered.
+    let (stdout, view) = ground_station_run(
+        "none",
+        "-",
+        "unsigned-gcs",
+        "heartbeats heard and two commands dropped",
+        |p, v| p.count("heartbeats") >= 2 && v.signing_drops[1].unsigned >= 2,
+    )
+    .await;
     // Without a key pymavlink does not check signatures: it hears the bridge.
     assert!(value(&stdout, "heartbeats") >= 2, "{stdout}");
     // Its commands are dropped as unsigned, never answered.
@@ -443,7 +608,7 @@ async fn an_unsigned_ground_station_hears_the_bridge_but_is_not_answered() {
 }
 
 /// A ground station on the bridge's `gcs` output that sets `S1_PWM_TRIM` to 1500 (again every
-/// 0.5 s until a PARAM_VALUE says so, or `seconds` pass) and counts the PARAM_VALUEs it hears.
+/// 0.5 s until a PARAM_VALUE says so) and counts the PARAM_VALUEs it hears, until stopped.
 const PARAM_SETTER: &str = r#"
 port, seconds, form, secret = int(sys.argv[1]), float(sys.argv[2]), sys.argv[3], sys.argv[4]
 m = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="common", source_system=255, source_component=190)
@@ -451,11 +616,12 @@ setup(m, form, secret)
 mav = mavutil.mavlink
 sets, values, trim = 0, 0, None
 end, next_set = time.time() + seconds, 0.0
-while time.time() < end and trim != 1500.0:
+while running(end):
+    progress(sets=sets, param_values=values, trim=int(trim) if trim is not None else 0)
     msg = m.recv_match(blocking=True, timeout=0.1)
     now = time.time()
     if getattr(m, "clients", None) or getattr(m, "last_address", None) is not None:
-        if now >= next_set:
+        if now >= next_set and trim != 1500.0:
             m.mav.param_set_send(1, 140, b"S1_PWM_TRIM", 1500.0, mav.MAV_PARAM_TYPE_REAL32)
             sets += 1
             next_set = now + 0.5
@@ -470,9 +636,16 @@ print("trim", int(trim) if trim is not None else 0)
 "#;
 
 /// The bridge, its mapping in a file, the simulated autopilot signing with the mapping's key,
-/// and pymavlink setting a parameter as the ground station for up to `seconds`; returns the
-/// script's output, the bridge's view and the mapping file as it is after the run.
-async fn param_setter_run(form: &str, secret: &str, name: &str) -> (String, BridgeView, String) {
+/// and pymavlink setting a parameter as the ground station until `done` holds of it and the
+/// bridge's view (up to 30 s, `what` in the failure); returns the script's output, the bridge's
+/// view and the mapping file as it is after the run.
+async fn param_setter_run(
+    form: &str,
+    secret: &str,
+    name: &str,
+    what: &str,
+    done: impl Fn(&Peer, &BridgeView) -> bool,
+) -> (String, BridgeView, String) {
     let (text, ts) = keyed(name);
     let file = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
         .join(format!("signing-{name}-{}.toml", std::process::id()));
@@ -487,11 +660,13 @@ async fn param_setter_run(form: &str, secret: &str, name: &str) -> (String, Brid
     let chain = Chain::start_opts(&text, opts).await;
     let args = vec![
         port.to_string(),
-        "6".into(),
+        PEER_LIMIT.into(),
         form.to_string(),
         secret.to_string(),
     ];
-    let stdout = run_script(script(PARAM_SETTER), args, "parameter setter").await;
+    let peer = Peer::start(script(PARAM_SETTER), args, "parameter setter").await;
+    peer.wait(&chain, what, Duration::from_secs(30), done).await;
+    let stdout = peer.stop().await;
     let view = chain.view.borrow().clone();
     chain.stop().await;
     let saved = std::fs::read_to_string(&file).unwrap();
@@ -502,7 +677,11 @@ async fn param_setter_run(form: &str, secret: &str, name: &str) -> (String, Brid
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_signed_ground_station_sets_a_parameter_and_the_file_keeps_it() {
-    let (stdout, view, saved) = param_setter_run("key", KEY_HEX, "signed-param").await;
+    let (stdout, view, saved) =
+        param_setter_run("key", KEY_HEX, "signed-param", "the new trim", |p, _| {
+            p.count("trim") == 1500
+        })
+        .await;
     assert_eq!(value(&stdout, "trim"), 1500, "{stdout}");
     assert!(saved.contains("pwm_trim_us = 1500"), "{saved}");
     assert_eq!(view.signing_drops[1].total(), 0, "{view:?}");
@@ -510,7 +689,12 @@ async fn a_signed_ground_station_sets_a_parameter_and_the_file_keeps_it() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_parameter_set_from_an_unsigned_sender_is_refused_and_nothing_is_written() {
-    let (stdout, view, saved) = param_setter_run("none", "-", "unsigned-param").await;
+    // Done once two sets were dropped: a dropped set never reaches the parameters.
+    let (stdout, view, saved) =
+        param_setter_run("none", "-", "unsigned-param", "two sets dropped", |p, v| {
+            p.count("sets") >= 2 && v.signing_drops[1].unsigned >= 2
+        })
+        .await;
     assert!(value(&stdout, "sets") >= 2, "{stdout}");
     // Not one PARAM_VALUE: the set never reached the parameters.
     assert_eq!(value(&stdout, "param_values"), 0, "{stdout}");

@@ -165,7 +165,9 @@ mod tests {
         w.pause();
         assert_eq!(w.degraded(), Some(30));
         // The first window after the pause only opens; its lifetime history says nothing.
+        // Were the lifetime history judged, its 51 % would keep the servo degraded, with 51 %.
         assert_eq!(w.judge(counts(1000, 1000)), None);
+        assert_eq!(w.degraded(), Some(30));
         w.forget();
         assert_eq!(w.degraded(), None);
     }

@@ -305,6 +305,16 @@ impl TimestampFile {
     /// Replace the stored reservation: a temporary file beside it, fsync, rename over, fsync
     /// of the folder. A power cut leaves the old number or the new one.
     pub fn store(&self, reservation: u64) -> Result<(), TimestampFileError> {
+        self.store_renaming(reservation, |from, to| std::fs::rename(from, to))
+    }
+
+    /// [`TimestampFile::store`] with the rename given: a test makes it fail, as a power cut
+    /// between writing and renaming would.
+    fn store_renaming(
+        &self,
+        reservation: u64,
+        rename: impl FnOnce(&Path, &Path) -> std::io::Result<()>,
+    ) -> Result<(), TimestampFileError> {
         let write = || -> std::io::Result<()> {
             let dir = match self.path.parent() {
                 Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
@@ -318,7 +328,7 @@ impl TimestampFile {
             writeln!(f, "{reservation}")?;
             f.sync_all()?;
             drop(f);
-            std::fs::rename(&tmp, &self.path)?;
+            rename(&tmp, &self.path)?;
             // The rename itself is durable once the folder is.
             if let Ok(d) = std::fs::File::open(&dir) {
                 let _ = d.sync_all();
@@ -772,9 +782,20 @@ mod tests {
         let dir = unique_dir("torn");
         let file = TimestampFile::new(dir.join("t"));
         file.store(123_456).unwrap();
-        // A temporary file left half-written by a power cut is not read.
-        std::fs::write(dir.join("t.tmp"), "99").unwrap();
+        // The power goes once the new number is written and synced, before the rename.
+        let e = file
+            .store_renaming(200_000, |_, _| {
+                Err(std::io::Error::other("power cut before the rename"))
+            })
+            .expect_err("the rename failed");
+        assert!(matches!(e, TimestampFileError::Write { .. }), "{e}");
+        assert_eq!(
+            std::fs::read_to_string(dir.join("t.tmp")).unwrap(),
+            "200000\n"
+        );
+        // The temporary file is not read: the previous reservation stands.
         assert_eq!(file.load().unwrap(), Some(123_456));
+        // The next store writes over the leftover temporary file.
         file.store(200_000).unwrap();
         assert_eq!(file.load().unwrap(), Some(200_000));
         std::fs::write(dir.join("t"), "garbage").unwrap();

@@ -171,7 +171,8 @@ pub fn assert_line_kept(
         );
     }
     println!(
-        "the simulator ran late {} times: {} talk-overs, all of replies given up on; {} timeouts",
+        "the simulator ran late {} times: {} talk-overs, all of replies given up on; {} timeouts; \
+         not judged: a line never talked over, every request answered",
         stats.handed_late, stats.collisions, c.timeouts
     );
 }
