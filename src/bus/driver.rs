@@ -709,17 +709,9 @@ impl Driver {
             (self.observe)(&status);
             self.status.send_replace(status);
         }
+        // Not logged here: whoever takes the events logs them (the bridge logs every one), and
+        // the bus thread does not wait on a log's writer.
         for event in events {
-            let bus = &self.name;
-            match &event {
-                BusEvent::ServoOnline { .. }
-                | BusEvent::ServoBack { .. }
-                | BusEvent::PortBack
-                | BusEvent::RepliesOk { .. }
-                | BusEvent::TemperatureAlarm { on: false, .. }
-                | BusEvent::Stalled { on: false, .. } => tracing::info!(bus = %bus, "{event}"),
-                _ => tracing::warn!(bus = %bus, "{event}"),
-            }
             let _ = self.events.send(event);
         }
     }
