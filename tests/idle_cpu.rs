@@ -76,9 +76,11 @@ async fn waiting_for_the_autopilot_costs_no_more_than_running() {
 
     let running = Chain::start(MAPPING, true).await;
     running
-        .wait_view("the autopilot's outputs obeyed", Duration::from_secs(20), |v| {
-            v.autopilot.is_some() && v.servos.iter().all(|s| s.goal_mm.is_some())
-        })
+        .wait_view(
+            "the autopilot's outputs obeyed",
+            Duration::from_secs(20),
+            |v| v.autopilot.is_some() && v.servos.iter().all(|s| s.goal_mm.is_some()),
+        )
         .await;
     let busy = cpu_over_a_spell().await;
     running.stop().await;

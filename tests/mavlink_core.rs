@@ -419,7 +419,10 @@ fn failsafe_is_entered_after_the_timeout_and_left_on_the_next_output() {
     messages(&mut c);
     c.handle_timeout(t0 + Duration::from_millis(499), &[]);
     assert!(!c.in_failsafe());
-    assert!(c.poll_timeout().is_some_and(|t| t <= t0 + Duration::from_millis(500)));
+    assert!(
+        c.poll_timeout()
+            .is_some_and(|t| t <= t0 + Duration::from_millis(500))
+    );
     c.handle_timeout(t0 + Duration::from_millis(500), &[]);
     assert!(c.in_failsafe());
     let got = commands(&mut c);
@@ -541,7 +544,10 @@ fn after_the_streams_failsafe_a_channel_that_does_not_return_is_announced() {
     let back = t0 + Duration::from_secs(2);
     c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), back);
     assert!(c.servo_in_failsafe(1) && !c.servo_in_failsafe(0));
-    assert!(c.poll_timeout().is_some_and(|t| t <= back + Duration::from_millis(500)));
+    assert!(
+        c.poll_timeout()
+            .is_some_and(|t| t <= back + Duration::from_millis(500))
+    );
     c.handle_message(
         0,
         &header(AP),

@@ -867,7 +867,10 @@ impl BridgeCore {
         if self.system_id.is_none() {
             return t;
         }
-        t = earliest(t, Some(self.next_heartbeat.min(self.telemetry.next_deadline())));
+        t = earliest(
+            t,
+            Some(self.next_heartbeat.min(self.telemetry.next_deadline())),
+        );
         if !self.stream_ok && !self.source_refused {
             t = earliest(t, Some(self.next_stream_request));
         }

@@ -49,7 +49,12 @@ fn make_venv(dir: &Path) -> PathBuf {
         venv.display()
     );
     let pip = Command::new(venv.join("bin/pip"))
-        .args(["install", "--quiet", "--disable-pip-version-check", "pymavlink"])
+        .args([
+            "install",
+            "--quiet",
+            "--disable-pip-version-check",
+            "pymavlink",
+        ])
         .status();
     assert!(
         pip.is_ok_and(|s| s.success()),
