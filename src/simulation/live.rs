@@ -269,6 +269,25 @@ fn wrap_all<'a>(texts: impl IntoIterator<Item = &'a str>, width: usize) -> Vec<S
     texts.into_iter().flat_map(|t| wrap(t, width)).collect()
 }
 
+/// The latest of `texts` that fit whole in `room` lines of `width`, wrapped: a text is not
+/// shown from its middle (unless the latest alone is taller than the room).
+fn latest_whole(texts: &[String], width: usize, room: usize) -> Vec<String> {
+    let mut shown: Vec<Vec<String>> = Vec::new();
+    let mut used = 0;
+    for text in texts.iter().rev() {
+        let lines = wrap(text, width);
+        if used + lines.len() > room {
+            if shown.is_empty() {
+                shown.push(lines.into_iter().take(room).collect());
+            }
+            break;
+        }
+        used += lines.len();
+        shown.push(lines);
+    }
+    shown.into_iter().rev().flatten().collect()
+}
+
 /// A column of the servo table: its header and its cells, as drawn.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Column {
@@ -461,17 +480,22 @@ impl ServoTable {
 /// A bus's line: its name padded to `name_width`.
 fn bus_line(b: &BusRow, name_width: usize) -> String {
     format!(
-        "{:<name_width$}  {}  wire use {:>5}%  bad replies {:>5}%  late wake-ups {}",
+        "{:<name_width$}  {}  wire use {:>6}  bad replies {:>6}  late wake-ups {}",
         b.name,
         if b.port_open {
             "port open"
         } else {
             "PORT LOST"
         },
-        cell(b.utilisation_percent, 1),
-        cell(b.bad_replies_percent, 1),
+        share(b.utilisation_percent),
+        share(b.bad_replies_percent),
         b.late_wakeups
     )
+}
+
+/// A percentage with one decimal, or `-` when there is none yet.
+fn share(percent: Option<f32>) -> String {
+    percent.map_or_else(|| "-".to_string(), |p| format!("{p:.1}%"))
 }
 
 /// Draw the model on a frame. Every box is as tall as what it holds, the log box takes the
@@ -497,7 +521,6 @@ pub fn draw(frame: &mut ratatui::Frame, model: &LiveModel) {
         inside,
     );
     let text_lines = wrap_all(model.texts.iter().map(String::as_str), inside);
-    let log_lines = wrap_all(model.log.iter().map(String::as_str), inside);
     let tall = |lines: usize| Constraint::Length(lines as u16 + 2);
     let [link, servos, buses, texts, log, help] = Layout::vertical([
         Constraint::Length(link_lines.len() as u16),
@@ -539,11 +562,13 @@ pub fn draw(frame: &mut ratatui::Frame, model: &LiveModel) {
             .block(Block::bordered().title(" STATUSTEXT, latest last ")),
         texts,
     );
-    let room = usize::from(log.height.saturating_sub(2));
-    let latest = log_lines.len().saturating_sub(room);
+    let log_lines = latest_whole(
+        &model.log,
+        inside,
+        usize::from(log.height.saturating_sub(2)),
+    );
     frame.render_widget(
-        Paragraph::new(lines(log_lines.into_iter().skip(latest).collect()))
-            .block(Block::bordered().title(" log ")),
+        Paragraph::new(lines(log_lines)).block(Block::bordered().title(" log ")),
         log,
     );
     frame.render_widget(Paragraph::new("q: quit"), help);
@@ -966,6 +991,8 @@ mod tests {
             "a history on\n{text}"
         );
         assert!(words(&lines).iter().any(|w| w == "state"), "{text}");
+        assert!(text.contains("bad replies      -"), "{text}");
+        assert!(text.contains("late wake-ups 0"), "{text}");
     }
 
     #[test]
@@ -1103,6 +1130,25 @@ mod tests {
         let at_80 = ServoTable::lay_out(&m.servos, 78);
         assert_eq!(at_80.columns.len(), 10, "{at_80:?}");
         assert!(!at_80.labels);
+    }
+
+    #[test]
+    fn the_log_shows_its_latest_lines_whole() {
+        let log: Vec<String> = ["one two three", "four", "five six seven eight"]
+            .map(String::from)
+            .into();
+        // In lines of 12: "one two" "  three", "four", "five six" "  seven" "  eight".
+        let four = ["four", "five six", "  seven", "  eight"];
+        assert_eq!(latest_whole(&log, 12, 4), four);
+        assert_eq!(
+            latest_whole(&log, 12, 5),
+            four,
+            "not from the middle of a line"
+        );
+        assert_eq!(latest_whole(&log, 12, 6).len(), 6);
+        // The latest alone is taller than the box: its start.
+        assert_eq!(latest_whole(&log, 12, 2), ["five six", "  seven"]);
+        assert!(latest_whole(&log, 12, 0).is_empty());
     }
 
     #[test]
