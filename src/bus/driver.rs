@@ -238,48 +238,26 @@ struct Core {
     late_wakeups: LateWakeups,
 }
 
-/// How often at most the operator is warned that the bus thread runs late.
-const LATE_WARNING_PERIOD: Duration = Duration::from_secs(60);
-
-/// Late wake-ups of the bus thread, for the operator: the first one is a warning at once, the
-/// ones after it are summed up in one warning at most every [`LATE_WARNING_PERIOD`].
+/// Late wake-ups of the bus thread, for the operator: the first one is a warning, the ones
+/// after it are only counted ([`super::BusCounters::late_wakeups`], shown in the bus row of
+/// the live view) and logged at debug level. On a busy computer they come by the thousand; a
+/// warning for each, or a summary every minute, would bury the other lines of the log.
 #[derive(Debug, Default)]
 struct LateWakeups {
-    warned_at: Option<Instant>,
-    /// Late wake-ups since the last warning, and the latest of them.
-    held: u32,
-    worst: Duration,
+    warned: bool,
 }
 
 impl LateWakeups {
-    /// A wake-up `late` at `now`: the warning to give now, if any.
-    fn note(&mut self, now: Instant, late: Duration) -> Option<String> {
-        self.held += 1;
-        self.worst = self.worst.max(late);
-        if self
-            .warned_at
-            .is_some_and(|at| now.saturating_duration_since(at) < LATE_WARNING_PERIOD)
-        {
+    /// A wake-up `late`: the warning to give now, if any.
+    fn note(&mut self, late: Duration) -> Option<String> {
+        if std::mem::replace(&mut self.warned, true) {
             return None;
         }
-        let warning = if self.warned_at.is_none() {
-            format!(
-                "bus thread woke {:.1} ms late: the computer did not run it in time, and a goal \
-                 may have waited as long (further late wake-ups are summed up once a minute)",
-                late.as_secs_f64() * 1e3
-            )
-        } else {
-            format!(
-                "bus thread woke late {} times since the last warning (worst {:.1} ms): the \
-                 computer is too busy to run it in time",
-                self.held,
-                self.worst.as_secs_f64() * 1e3
-            )
-        };
-        self.warned_at = Some(now);
-        self.held = 0;
-        self.worst = Duration::ZERO;
-        Some(warning)
+        Some(format!(
+            "bus thread woke {:.1} ms late: the computer did not run it in time, and a goal may \
+             have waited as long (said once; later ones are only counted)",
+            late.as_secs_f64() * 1e3
+        ))
     }
 }
 
@@ -328,7 +306,7 @@ impl Core {
 
     /// The bus thread ran `late` after the instant it slept until: counted, logged at debug
     /// level (with the instant, for whoever lines it up with the traffic), and told to the
-    /// operator as a warning at most once per [`LATE_WARNING_PERIOD`].
+    /// operator as a warning the first time ([`LateWakeups`]).
     fn late_wakeup(&mut self, late: Duration) {
         self.master.note_late_wakeup();
         let bus = &self.master.config().name;
@@ -337,7 +315,7 @@ impl Core {
             late_us = u64::try_from(late.as_micros()).unwrap_or(u64::MAX),
             "bus thread woke late"
         );
-        if let Some(warning) = self.late_wakeups.note(Instant::now(), late) {
+        if let Some(warning) = self.late_wakeups.note(late) {
             tracing::warn!(bus = %bus, "{warning}");
         }
     }
@@ -724,17 +702,9 @@ impl Driver {
             (self.observe)(&status);
             self.status.send_replace(status);
         }
+        // Not logged here: whoever takes the events logs them (the bridge logs every one), and
+        // the bus thread does not wait on a log's writer.
         for event in events {
-            let bus = &self.name;
-            match &event {
-                BusEvent::ServoOnline { .. }
-                | BusEvent::ServoBack { .. }
-                | BusEvent::PortBack
-                | BusEvent::RepliesOk { .. }
-                | BusEvent::TemperatureAlarm { on: false, .. }
-                | BusEvent::Stalled { on: false, .. } => tracing::info!(bus = %bus, "{event}"),
-                _ => tracing::warn!(bus = %bus, "{event}"),
-            }
             let _ = self.events.send(event);
         }
     }
@@ -922,23 +892,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn late_wake_ups_are_told_at_once_then_summed_up_once_a_minute() {
-        let t0 = Instant::now();
+    fn a_late_wake_up_is_told_once_then_only_counted() {
         let ms = Duration::from_millis;
         let mut late = LateWakeups::default();
-        let first = late.note(t0, ms(2)).expect("the first is told at once");
+        let first = late.note(ms(2)).expect("the first is told");
         assert!(first.contains("2.0 ms late"), "{first}");
-        // Within the minute: held back.
-        assert_eq!(late.note(t0 + ms(10), ms(3)), None);
-        assert_eq!(late.note(t0 + Duration::from_secs(30), ms(1)), None);
-        // The next one after the minute tells all three, with the worst.
-        let summary = late
-            .note(t0 + Duration::from_secs(61), ms(1))
-            .expect("a summary after the minute");
-        assert!(
-            summary.contains("3 times") && summary.contains("worst 3.0 ms"),
-            "{summary}"
-        );
-        assert_eq!(late.note(t0 + Duration::from_secs(62), ms(1)), None);
+        for _ in 0..1000 {
+            assert_eq!(late.note(ms(3)), None);
+        }
     }
 }

@@ -61,6 +61,20 @@ impl BusEvent {
             BusEvent::PortLost { .. } | BusEvent::PortBack => None,
         }
     }
+
+    /// Whether the event is trouble (a warning in a log) rather than news of things going
+    /// well again (information).
+    pub fn is_trouble(&self) -> bool {
+        !matches!(
+            self,
+            BusEvent::ServoOnline { .. }
+                | BusEvent::ServoBack { .. }
+                | BusEvent::PortBack
+                | BusEvent::RepliesOk { .. }
+                | BusEvent::TemperatureAlarm { on: false, .. }
+                | BusEvent::Stalled { on: false, .. }
+        )
+    }
 }
 
 impl fmt::Display for BusEvent {
@@ -99,6 +113,34 @@ impl fmt::Display for BusEvent {
             BusEvent::RepliesOk { id } => write!(f, "servo {id} replies ok"),
             BusEvent::PortLost { reason } => write!(f, "serial port lost: {reason}"),
             BusEvent::PortBack => f.write_str("serial port back"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trouble_is_what_went_wrong_not_what_came_right() {
+        let id = ServoId::new(3).unwrap();
+        for event in [
+            BusEvent::ServoLost { id },
+            BusEvent::TemperatureAlarm { id, on: true },
+            BusEvent::Stalled { id, on: true },
+            BusEvent::PortLost {
+                reason: "end of file".into(),
+            },
+        ] {
+            assert!(event.is_trouble(), "{event}");
+        }
+        for event in [
+            BusEvent::ServoOnline { id },
+            BusEvent::TemperatureAlarm { id, on: false },
+            BusEvent::Stalled { id, on: false },
+            BusEvent::PortBack,
+        ] {
+            assert!(!event.is_trouble(), "{event}");
         }
     }
 }

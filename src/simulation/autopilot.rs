@@ -56,6 +56,12 @@ impl Default for AutopilotConfig {
 }
 
 impl AutopilotConfig {
+    /// Whether a SERVO_OUTPUT_RAW rate of `hz` is granted: up to 0.8 × the loop rate, as
+    /// ArduPilot does.
+    pub fn grants(&self, hz: f32) -> bool {
+        hz <= 0.8 * self.loop_rate_hz
+    }
+
     /// The simulated autopilot for a mapping: it sends to `udpout:127.0.0.1:<port>` and drives
     /// the channels (1–16) the mapping's servos listen to.
     pub fn for_mapping(cfg: &crate::config::Config, port: u16) -> Self {
@@ -166,7 +172,7 @@ pub async fn run(
                         _ => None,
                     };
                     match hz {
-                        Some(hz) if hz > 0.8 * cfg.loop_rate_hz => {
+                        Some(hz) if !cfg.grants(hz) => {
                             handle.inner.denied.fetch_add(1, Ordering::SeqCst);
                             MavResult::MAV_RESULT_DENIED
                         }
@@ -252,6 +258,20 @@ pub async fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_built_in_airframe_asks_the_rate_the_simulated_autopilot_grants() {
+        let cfg = crate::config::Config::default_sitl();
+        let autopilot = AutopilotConfig::for_mapping(&cfg, 14560);
+        let asked = cfg.mavlink.output_rate_hz;
+        assert!(
+            autopilot.grants(asked),
+            "the built-in airframe asks {asked} Hz, the simulated autopilot grants up to {} Hz",
+            0.8 * autopilot.loop_rate_hz
+        );
+        // ArduPilot's rule, at stock Plane's loop rate: 40 Hz granted, 50 Hz denied.
+        assert!(autopilot.grants(40.0) && !autopilot.grants(50.0));
+    }
 
     #[test]
     fn the_sweep_stays_inside_the_pwm_range() {

@@ -23,17 +23,20 @@ use crate::runtime::BridgeView;
 use ratatui::crossterm::event::{self, Event, KeyCode, KeyEventKind, KeyModifiers};
 use ratatui::layout::{Constraint, Layout};
 use ratatui::style::{Color, Modifier, Style};
-use ratatui::text::Line;
+use ratatui::text::{Line, Span};
 use ratatui::widgets::{Block, Paragraph, Row, Table};
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
 
-/// Samples kept for a servo's history (one per redraw).
-pub const HISTORY: usize = 30;
-/// Log lines kept for the view.
-pub const LOG_LINES: usize = 5;
+/// Samples kept for a servo's history (one per redraw: 12 s), the most a history shows.
+pub const HISTORY: usize = 60;
+/// The fewest samples a history is drawn with (4 s): a shorter one shows no trend, and its
+/// columns are better given to numbers.
+const HISTORY_MIN: usize = 20;
+/// Log lines kept for the view; it shows the latest that fit.
+pub const LOG_LINES: usize = 200;
 /// How often the screen is redrawn (and `q` looked for).
 const PERIOD: Duration = Duration::from_millis(200);
 /// The eight heights of a sparkline.
@@ -43,6 +46,9 @@ const BARS: [char; 8] = ['▁', '▂', '▃', '▄', '▅', '▆', '▇', '█']
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct ServoRow {
     pub name: String,
+    /// The mapping's short name for the servo (its telemetry prefix, at most 6 characters,
+    /// unique): shown instead of the name where names do not fit. The name when not known.
+    pub label: String,
     pub bus: String,
     pub id: u8,
     pub goal_mm: Option<f32>,
@@ -87,6 +93,8 @@ pub struct LiveModel {
     pub log: Vec<String>,
     /// Each bus's previous counters, for the rates.
     previous: Vec<(Instant, BusCounters)>,
+    /// Each servo's label, by name.
+    labels: HashMap<String, String>,
 }
 
 fn push(history: &mut VecDeque<f32>, value: Option<f32>) {
@@ -104,6 +112,15 @@ fn percent(value: u64, total: u64) -> Option<f32> {
 }
 
 impl LiveModel {
+    /// A model that knows the servos' labels (name → label), for a terminal too narrow for
+    /// their names.
+    pub fn with_labels(labels: HashMap<String, String>) -> Self {
+        LiveModel {
+            labels,
+            ..Default::default()
+        }
+    }
+
     /// Take in a new view of the bridge (and the latest log lines).
     pub fn update(&mut self, view: &BridgeView, log: Vec<String>) {
         self.link = match view.autopilot {
@@ -127,6 +144,8 @@ impl LiveModel {
             let error_mm = r.position_mm.zip(goal_mm).map(|(p, g)| p - g);
             let state = super::table::state_text(s);
             row.name.clone_from(&s.name);
+            row.label
+                .clone_from(self.labels.get(&s.name).unwrap_or(&s.name));
             row.bus.clone_from(&s.bus);
             row.id = s.id.get();
             row.goal_mm = goal_mm;
@@ -176,12 +195,12 @@ impl LiveModel {
     }
 }
 
-/// The history as bars, scaled to its largest value (or `floor`, if larger: a flat line of
-/// small values stays low).
-pub fn sparkline(history: &VecDeque<f32>, floor: f32) -> String {
-    let top = history.iter().copied().fold(floor, f32::max);
-    history
-        .iter()
+/// The newest `width` samples of the history as bars, scaled to their largest value (or
+/// `floor`, if larger: a flat line of small values stays low).
+pub fn sparkline(history: &VecDeque<f32>, width: usize, floor: f32) -> String {
+    let shown = history.iter().skip(history.len().saturating_sub(width));
+    let top = shown.clone().copied().fold(floor, f32::max);
+    shown
         .map(|v| {
             let level = (v / top * (BARS.len() - 1) as f32).round();
             BARS[(level.max(0.0) as usize).min(BARS.len() - 1)]
@@ -193,115 +212,363 @@ fn cell(v: Option<f32>, decimals: usize) -> String {
     v.map_or_else(|| "-".to_string(), |v| format!("{v:.decimals$}"))
 }
 
-/// Draw the model on a frame.
+/// Columns a text takes on the terminal.
+fn width_of(text: &str) -> usize {
+    Span::raw(text).width()
+}
+
+/// `text` cut into lines of at most `width` characters, at blanks where it can be; the lines
+/// after the first are indented by two.
+fn wrap(text: &str, width: usize) -> Vec<String> {
+    let width = width.max(4);
+    let mut lines = Vec::new();
+    let mut line = String::new();
+    for word in text.split(' ') {
+        let mut word = word.to_string();
+        loop {
+            let room = width - line.chars().count();
+            let gap = usize::from(!line.trim().is_empty());
+            let n = word.chars().count();
+            if n + gap <= room {
+                if gap == 1 {
+                    line.push(' ');
+                }
+                line.push_str(&word);
+                break;
+            }
+            if !line.trim().is_empty() && n <= width - 2 {
+                // The word goes whole on the next line.
+                lines.push(std::mem::replace(&mut line, "  ".into()));
+                continue;
+            }
+            // A word longer than a line: cut it where the line ends.
+            let take = room.saturating_sub(gap);
+            if take == 0 {
+                lines.push(std::mem::replace(&mut line, "  ".into()));
+                continue;
+            }
+            if gap == 1 {
+                line.push(' ');
+            }
+            line.extend(word.chars().take(take));
+            word = word.chars().skip(take).collect();
+            lines.push(std::mem::replace(&mut line, "  ".into()));
+            if word.is_empty() {
+                break;
+            }
+        }
+    }
+    if !line.trim().is_empty() || lines.is_empty() {
+        lines.push(line);
+    }
+    lines
+}
+
+/// Lines of text wrapped to `width`.
+fn wrap_all<'a>(texts: impl IntoIterator<Item = &'a str>, width: usize) -> Vec<String> {
+    texts.into_iter().flat_map(|t| wrap(t, width)).collect()
+}
+
+/// The latest of `texts` that fit whole in `room` lines of `width`, wrapped: a text is not
+/// shown from its middle (unless the latest alone is taller than the room).
+fn latest_whole(texts: &[String], width: usize, room: usize) -> Vec<String> {
+    let mut shown: Vec<Vec<String>> = Vec::new();
+    let mut used = 0;
+    for text in texts.iter().rev() {
+        let lines = wrap(text, width);
+        if used + lines.len() > room {
+            if shown.is_empty() {
+                shown.push(lines.into_iter().take(room).collect());
+            }
+            break;
+        }
+        used += lines.len();
+        shown.push(lines);
+    }
+    shown.into_iter().rev().flatten().collect()
+}
+
+/// A column of the servo table: its header and its cells, as drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Column {
+    Servo,
+    Bus,
+    Id,
+    Goal,
+    Position,
+    Error,
+    Current,
+    Temperature,
+    Voltage,
+    State,
+    ErrorHistory,
+    CurrentHistory,
+}
+
+impl Column {
+    fn header(self) -> &'static str {
+        match self {
+            Column::Servo => "servo",
+            Column::Bus => "bus",
+            Column::Id => "id",
+            Column::Goal => "goal mm",
+            Column::Position => "pos mm",
+            Column::Error => "err mm",
+            Column::Current => "A",
+            Column::Temperature => "°C",
+            Column::Voltage => "V",
+            Column::State => "state",
+            Column::ErrorHistory => "|err| history",
+            Column::CurrentHistory => "current history",
+        }
+    }
+
+    /// Numbers are aligned on the right, text on the left.
+    fn right(self) -> bool {
+        !matches!(
+            self,
+            Column::Servo
+                | Column::Bus
+                | Column::State
+                | Column::ErrorHistory
+                | Column::CurrentHistory
+        )
+    }
+}
+
+/// What gives way, in this order, when the servo table is wider than the terminal: the
+/// histories (the current's first), the names for the servos' labels, then the columns that
+/// say least in flight (the goal last: it is the position less the error). The name,
+/// position, error and state always stay.
+const GIVE_WAY: [Column; 6] = [
+    Column::Bus,
+    Column::Id,
+    Column::Voltage,
+    Column::Current,
+    Column::Temperature,
+    Column::Goal,
+];
+
+/// The servo table for `width` columns (inside the box): the columns shown, each with its
+/// width, and whether servos go by their labels. Every cell is whole: a column is dropped
+/// rather than cut.
+#[derive(Debug, PartialEq)]
+struct ServoTable {
+    columns: Vec<(Column, usize)>,
+    labels: bool,
+}
+
+impl ServoTable {
+    fn cell(servo: &ServoRow, column: Column, labels: bool, width: usize) -> String {
+        match column {
+            Column::Servo if labels => servo.label.clone(),
+            Column::Servo => servo.name.clone(),
+            Column::Bus => servo.bus.clone(),
+            Column::Id => servo.id.to_string(),
+            Column::Goal => cell(servo.goal_mm, 2),
+            Column::Position => cell(servo.position_mm, 2),
+            Column::Error => cell(servo.error_mm, 2),
+            Column::Current => cell(servo.current_a, 2),
+            Column::Temperature => cell(servo.temperature_c, 0),
+            Column::Voltage => cell(servo.voltage_v, 2),
+            Column::State => servo.state.clone(),
+            Column::ErrorHistory => sparkline(&servo.error_history, width, 0.5),
+            Column::CurrentHistory => sparkline(&servo.current_history, width, 0.5),
+        }
+    }
+
+    /// The widest cell of a column of text or numbers, its header included.
+    fn fit(servos: &[ServoRow], column: Column, labels: bool) -> usize {
+        servos
+            .iter()
+            .map(|s| width_of(&Self::cell(s, column, labels, 0)))
+            .fold(width_of(column.header()), usize::max)
+    }
+
+    fn lay_out(servos: &[ServoRow], width: usize) -> ServoTable {
+        use Column::*;
+        let mut shown = vec![
+            Servo,
+            Bus,
+            Id,
+            Goal,
+            Position,
+            Error,
+            Current,
+            Temperature,
+            Voltage,
+            State,
+        ];
+        let needs = |shown: &[Column], labels: bool| {
+            shown
+                .iter()
+                .map(|c| Self::fit(servos, *c, labels) + 1)
+                .sum::<usize>()
+                - 1
+        };
+        let mut labels = false;
+        let mut give_way = GIVE_WAY.iter();
+        while needs(&shown, labels) > width {
+            if !labels && needs(&shown, true) < needs(&shown, false) {
+                labels = true;
+                continue;
+            }
+            match give_way.next() {
+                Some(column) => shown.retain(|c| c != column),
+                None => break,
+            }
+        }
+        let mut columns: Vec<(Column, usize)> = shown
+            .into_iter()
+            .map(|c| (c, Self::fit(servos, c, labels)))
+            .collect();
+        // The histories share what is left, each up to HISTORY samples.
+        let used = columns.iter().map(|c| c.1 + 1).sum::<usize>() - 1;
+        let left = width.saturating_sub(used);
+        let least = |c: Column| HISTORY_MIN.max(width_of(c.header())) + 1;
+        if left >= least(ErrorHistory) + least(CurrentHistory) {
+            let error = (left / 2).clamp(least(ErrorHistory), HISTORY + 1);
+            let current = (left - error).min(HISTORY + 1);
+            columns.push((ErrorHistory, error - 1));
+            columns.push((CurrentHistory, current - 1));
+        } else if left >= least(ErrorHistory) {
+            columns.push((ErrorHistory, (left - 1).min(HISTORY)));
+        }
+        ServoTable { columns, labels }
+    }
+
+    fn pad(text: &str, width: usize, right: bool) -> String {
+        let fill = " ".repeat(width.saturating_sub(width_of(text)));
+        if right {
+            format!("{fill}{text}")
+        } else {
+            format!("{text}{fill}")
+        }
+    }
+
+    fn header(&self) -> Row<'static> {
+        Row::new(
+            self.columns
+                .iter()
+                .map(|&(c, w)| Self::pad(c.header(), w, c.right())),
+        )
+        .style(Style::default().add_modifier(Modifier::BOLD))
+    }
+
+    fn row(&self, servo: &ServoRow) -> Row<'static> {
+        let style = if servo.state == "Online" {
+            Style::default()
+        } else {
+            Style::default().fg(Color::Yellow)
+        };
+        Row::new(
+            self.columns
+                .iter()
+                .map(|&(c, w)| Self::pad(&Self::cell(servo, c, self.labels, w), w, c.right())),
+        )
+        .style(style)
+    }
+
+    fn widths(&self) -> Vec<Constraint> {
+        self.columns
+            .iter()
+            .map(|&(_, w)| Constraint::Length(w as u16))
+            .collect()
+    }
+}
+
+/// A bus's line: its name padded to `name_width`.
+fn bus_line(b: &BusRow, name_width: usize) -> String {
+    format!(
+        "{:<name_width$}  {}  wire use {:>6}  bad replies {:>6}  late wake-ups {}",
+        b.name,
+        if b.port_open {
+            "port open"
+        } else {
+            "PORT LOST"
+        },
+        share(b.utilisation_percent),
+        share(b.bad_replies_percent),
+        b.late_wakeups
+    )
+}
+
+/// A percentage with one decimal, or `-` when there is none yet.
+fn share(percent: Option<f32>) -> String {
+    percent.map_or_else(|| "-".to_string(), |p| format!("{p:.1}%"))
+}
+
+/// Draw the model on a frame. Every box is as tall as what it holds, the log box takes the
+/// rest; long lines wrap rather than end at the border.
 pub fn draw(frame: &mut ratatui::Frame, model: &LiveModel) {
-    let servo_rows = model.servos.len() as u16 + 3;
-    let bus_rows = model.buses.len() as u16 + 2;
+    let area = frame.area();
+    let inside = usize::from(area.width.saturating_sub(2));
+    let link_lines = wrap(&model.link, usize::from(area.width));
+    let name_width = model
+        .buses
+        .iter()
+        .map(|b| width_of(&b.name))
+        .max()
+        .unwrap_or(0);
+    let bus_lines = wrap_all(
+        model
+            .buses
+            .iter()
+            .map(|b| bus_line(b, name_width))
+            .collect::<Vec<_>>()
+            .iter()
+            .map(String::as_str),
+        inside,
+    );
+    let text_lines = wrap_all(model.texts.iter().map(String::as_str), inside);
+    let tall = |lines: usize| Constraint::Length(lines as u16 + 2);
     let [link, servos, buses, texts, log, help] = Layout::vertical([
-        Constraint::Length(1),
-        Constraint::Length(servo_rows),
-        Constraint::Length(bus_rows),
+        Constraint::Length(link_lines.len() as u16),
+        tall(model.servos.len() + 1),
+        tall(bus_lines.len()),
+        tall(text_lines.len().max(1)),
         Constraint::Min(3),
-        Constraint::Length(LOG_LINES as u16 + 2),
         Constraint::Length(1),
     ])
-    .areas(frame.area());
+    .areas(area);
 
     let link_style = if model.failsafe {
         Style::default().fg(Color::Red).add_modifier(Modifier::BOLD)
     } else {
         Style::default()
     };
-    frame.render_widget(Paragraph::new(model.link.as_str()).style(link_style), link);
-
-    let header = Row::new([
-        "servo",
-        "bus",
-        "id",
-        "goal mm",
-        "pos mm",
-        "err mm",
-        "A",
-        "°C",
-        "V",
-        "state",
-        "|err| history",
-        "current history",
-    ])
-    .style(Style::default().add_modifier(Modifier::BOLD));
-    let rows = model.servos.iter().map(|s| {
-        let style = if s.state.starts_with("Online") && !s.state.contains(' ') {
-            Style::default()
-        } else {
-            Style::default().fg(Color::Yellow)
-        };
-        Row::new([
-            s.name.clone(),
-            s.bus.clone(),
-            s.id.to_string(),
-            cell(s.goal_mm, 2),
-            cell(s.position_mm, 2),
-            cell(s.error_mm, 2),
-            cell(s.current_a, 2),
-            cell(s.temperature_c, 0),
-            cell(s.voltage_v, 2),
-            s.state.clone(),
-            sparkline(&s.error_history, 0.5),
-            sparkline(&s.current_history, 0.5),
-        ])
-        .style(style)
-    });
-    let widths = [
-        Constraint::Length(14),
-        Constraint::Length(8),
-        Constraint::Length(3),
-        Constraint::Length(8),
-        Constraint::Length(8),
-        Constraint::Length(7),
-        Constraint::Length(6),
-        Constraint::Length(4),
-        Constraint::Length(6),
-        Constraint::Length(22),
-        Constraint::Length(HISTORY as u16),
-        Constraint::Length(HISTORY as u16),
-    ];
     frame.render_widget(
-        Table::new(rows, widths)
-            .header(header)
+        Paragraph::new(link_lines.into_iter().map(Line::from).collect::<Vec<_>>())
+            .style(link_style),
+        link,
+    );
+
+    let table = ServoTable::lay_out(&model.servos, inside);
+    frame.render_widget(
+        Table::new(model.servos.iter().map(|s| table.row(s)), table.widths())
+            .header(table.header())
+            .column_spacing(1)
             .block(Block::bordered().title(" servos ")),
         servos,
     );
 
-    let bus_lines: Vec<Line> = model
-        .buses
-        .iter()
-        .map(|b| {
-            Line::from(format!(
-                "{:<10} {}   wire use {:>5}%   bad replies {:>5}%   late wake-ups {}",
-                b.name,
-                if b.port_open {
-                    "port open"
-                } else {
-                    "PORT LOST"
-                },
-                cell(b.utilisation_percent, 1),
-                cell(b.bad_replies_percent, 1),
-                b.late_wakeups
-            ))
-        })
-        .collect();
+    let lines = |texts: Vec<String>| texts.into_iter().map(Line::from).collect::<Vec<_>>();
     frame.render_widget(
-        Paragraph::new(bus_lines).block(Block::bordered().title(" buses ")),
+        Paragraph::new(lines(bus_lines)).block(Block::bordered().title(" buses ")),
         buses,
     );
-    let text_lines: Vec<Line> = model.texts.iter().map(|t| Line::from(t.as_str())).collect();
     frame.render_widget(
-        Paragraph::new(text_lines).block(Block::bordered().title(" STATUSTEXT, latest last ")),
+        Paragraph::new(lines(text_lines))
+            .block(Block::bordered().title(" STATUSTEXT, latest last ")),
         texts,
     );
-    let log_lines: Vec<Line> = model.log.iter().map(|t| Line::from(t.as_str())).collect();
+    let log_lines = latest_whole(
+        &model.log,
+        inside,
+        usize::from(log.height.saturating_sub(2)),
+    );
     frame.render_widget(
-        Paragraph::new(log_lines).block(Block::bordered().title(" log ")),
+        Paragraph::new(lines(log_lines)).block(Block::bordered().title(" log ")),
         log,
     );
     frame.render_widget(Paragraph::new("q: quit"), help);
@@ -410,11 +677,14 @@ pub async fn quit_key() {
 }
 
 /// Show the live view until `q` is pressed (then return), or until the task is aborted or
-/// the bridge is gone.
-pub async fn show(mut view: watch::Receiver<BridgeView>) -> std::io::Result<()> {
+/// the bridge is gone. `labels`: each servo's label, by name.
+pub async fn show(
+    mut view: watch::Receiver<BridgeView>,
+    labels: HashMap<String, String>,
+) -> std::io::Result<()> {
     let mut terminal = ratatui::try_init()?;
     let _restore = Restore;
-    let mut model = LiveModel::default();
+    let mut model = LiveModel::with_labels(labels);
     loop {
         if view.has_changed().is_err() {
             return Ok(());
@@ -477,7 +747,7 @@ mod tests {
         }
         let row = &m.servos[0];
         assert_eq!(row.error_history.len(), HISTORY);
-        assert!((row.error_mm.unwrap() - (1.5 + 34.0 * 0.01 - 2.0)).abs() < 1e-4);
+        assert!((row.error_mm.unwrap() - (1.5 + (HISTORY + 4) as f32 * 0.01 - 2.0)).abs() < 1e-4);
         assert_eq!(row.current_history.len(), HISTORY);
         assert_eq!(row.state, "Online");
     }
@@ -606,10 +876,291 @@ mod tests {
     #[test]
     fn sparklines_scale_to_the_largest_value_or_the_floor() {
         let h: VecDeque<f32> = [0.0, 1.0, 2.0, 4.0].into();
-        assert_eq!(sparkline(&h, 0.5), "▁▃▅█");
+        assert_eq!(sparkline(&h, HISTORY, 0.5), "▁▃▅█");
         let small: VecDeque<f32> = [0.01, 0.02].into();
-        assert_eq!(sparkline(&small, 0.5), "▁▁");
-        assert_eq!(sparkline(&VecDeque::new(), 0.5), "");
+        assert_eq!(sparkline(&small, HISTORY, 0.5), "▁▁");
+        assert_eq!(sparkline(&VecDeque::new(), HISTORY, 0.5), "");
+        // Narrower than the history: the newest samples, scaled among themselves.
+        assert_eq!(sparkline(&h, 2, 0.5), "▅█");
+    }
+
+    /// The built-in airframe of `sitl` as the bridge sees it mid-flight.
+    fn airframe() -> BridgeView {
+        let t0 = Instant::now();
+        let servo = |name: &str, id: u8, goal: f64, position: f32| {
+            let mut s = servo(Some(goal), Some(position), Some(0.07));
+            s.name = name.into();
+            s.bus = "sim".into();
+            s.id = ServoId::new(id).unwrap();
+            s.report.temperature_c = Some(25.0);
+            s
+        };
+        BridgeView {
+            autopilot: Some((1, 1)),
+            output_rate_hz: 40.0,
+            servos: vec![
+                servo("aileron_left", 1, 14.0, 13.98),
+                servo("aileron_right", 2, -14.25, -14.31),
+                servo("elevator", 3, 8.75, 9.28),
+                servo("rudder", 4, -6.5, -7.3),
+            ],
+            buses: vec![bus(t0, BusCounters::default())],
+            ..Default::default()
+        }
+    }
+
+    /// The model drawn on a terminal of `width` × `height`, line by line.
+    fn screen(m: &LiveModel, width: u16, height: u16) -> Vec<String> {
+        use ratatui::Terminal;
+        use ratatui::backend::TestBackend;
+        let mut terminal = Terminal::new(TestBackend::new(width, height)).unwrap();
+        terminal.draw(|f| draw(f, m)).unwrap();
+        let buffer = terminal.backend().buffer();
+        (0..height)
+            .map(|y| (0..width).map(|x| buffer[(x, y)].symbol()).collect())
+            .collect()
+    }
+
+    /// The words of the screen: what is between blanks and box borders.
+    fn words(lines: &[String]) -> Vec<String> {
+        lines
+            .iter()
+            .flat_map(|l| l.split(|c: char| c.is_whitespace() || "│┌┐└┘─".contains(c)))
+            .filter(|w| !w.is_empty())
+            .map(str::to_string)
+            .collect()
+    }
+
+    /// Every name and every number of the airframe's rows is a whole word on the screen.
+    fn assert_whole(lines: &[String]) {
+        let words = words(lines);
+        let text = lines.join("\n");
+        for whole in [
+            "aileron_left",
+            "aileron_right",
+            "elevator",
+            "rudder",
+            "14.00",
+            "13.98",
+            "-0.02",
+            "-14.25",
+            "-14.31",
+            "-0.06",
+            "8.75",
+            "9.28",
+            "0.53",
+            "-6.50",
+            "-7.30",
+            "-0.80",
+            "0.07",
+            "25",
+            "12.00",
+            "Online",
+        ] {
+            assert!(
+                words.iter().any(|w| w == whole),
+                "{whole} not whole on\n{text}"
+            );
+        }
+        // One row per servo, each with its own name.
+        for name in ["aileron_left", "aileron_right", "elevator", "rudder"] {
+            let rows = lines
+                .iter()
+                .filter(|l| l.split_whitespace().any(|w| w.trim_matches('│') == name))
+                .count();
+            assert_eq!(rows, 1, "{name} on {rows} rows of\n{text}");
+        }
+    }
+
+    fn sitl_model() -> LiveModel {
+        let mut m = LiveModel::default();
+        for _ in 0..HISTORY {
+            m.update(&airframe(), vec![" INFO servo 4 online bus=sim".into()]);
+        }
+        m
+    }
+
+    #[test]
+    fn at_80_by_24_every_name_and_number_is_whole_and_the_histories_make_room() {
+        let lines = screen(&sitl_model(), 80, 24);
+        let text = lines.join("\n");
+        assert_whole(&lines);
+        assert!(!text.contains("history"), "a history header on\n{text}");
+        assert!(
+            !text.chars().any(|c| BARS.contains(&c)),
+            "a history on\n{text}"
+        );
+        assert!(words(&lines).iter().any(|w| w == "state"), "{text}");
+        assert!(text.contains("bad replies      -"), "{text}");
+        assert!(text.contains("late wake-ups 0"), "{text}");
+    }
+
+    #[test]
+    fn at_160_by_48_the_histories_come_back_with_their_headers_whole() {
+        // With two flaps whose names share a prefix, one of them in trouble.
+        let mut view = airframe();
+        let flap = |name: &str, id: u8| {
+            let mut s = view.servos[2].clone();
+            s.name = name.into();
+            s.id = ServoId::new(id).unwrap();
+            s
+        };
+        let inboard = flap("flap_left_inboard", 5);
+        let mut outboard = flap("flap_left_outboard", 6);
+        outboard.report.degraded = Some(23);
+        outboard.report.temperature_alarm = true;
+        outboard.report.stalled = true;
+        view.servos.extend([inboard, outboard]);
+        let mut m = LiveModel::default();
+        for _ in 0..HISTORY {
+            m.update(&view, vec![]);
+        }
+        let lines = screen(&m, 160, 48);
+        let text = lines.join("\n");
+        assert_whole(&lines);
+        for whole in ["flap_left_inboard", "flap_left_outboard"] {
+            assert!(
+                words(&lines).iter().any(|w| w == whole),
+                "{whole} not whole on\n{text}"
+            );
+        }
+        assert!(text.contains("Degraded 23% temp-alarm STALLED"), "{text}");
+        for header in ["|err| history", "current history"] {
+            assert!(text.contains(header), "{header} not on\n{text}");
+        }
+        let elevator = lines.iter().find(|l| l.contains("elevator")).unwrap();
+        assert!(
+            elevator.chars().filter(|c| BARS.contains(c)).count() >= 2 * 20,
+            "{elevator}"
+        );
+    }
+
+    #[test]
+    fn the_statustext_box_holds_its_lines_and_the_log_takes_the_rest() {
+        let mut m = sitl_model();
+        let log: Vec<String> = (0..40).map(|i| format!(" INFO line {i}")).collect();
+        m.update(&airframe(), log);
+        let lines = screen(&m, 160, 48);
+        let text = lines.join("\n");
+        let top = |title: &str| lines.iter().position(|l| l.contains(title)).unwrap();
+        // No STATUSTEXT yet: one empty line between the box's borders.
+        assert_eq!(top(" log ") - top(" STATUSTEXT"), 3, "{text}");
+        // The log box shows the latest lines, down to the help line.
+        assert!(text.contains("line 39"), "{text}");
+        assert_eq!(top("q: quit"), 47);
+        assert!(
+            lines[46].starts_with('└') && lines[45].contains("line 39"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn names_too_long_for_the_terminal_give_way_to_labels_that_tell_servos_apart() {
+        let mut view = airframe();
+        let left = "aileron_left_outboard_trailing_edge";
+        let right = "aileron_right_outboard_trailing_edge";
+        view.servos[0].name = left.into();
+        view.servos[1].name = right.into();
+        let labels = [
+            (left, "ail_lo"),
+            (right, "ail_ro"),
+            ("elevator", "elev"),
+            ("rudder", "rudder"),
+        ]
+        .map(|(n, l)| (n.to_string(), l.to_string()));
+        let mut m = LiveModel::with_labels(labels.into());
+        m.update(&view, vec![]);
+        let lines = screen(&m, 80, 24);
+        let text = lines.join("\n");
+        let words = words(&lines);
+        for label in ["ail_lo", "ail_ro", "elev", "rudder"] {
+            let n = words.iter().filter(|w| *w == label).count();
+            assert_eq!(n, 1, "{label} {n} times on\n{text}");
+        }
+        assert!(!text.contains("aileron"), "a cut name on\n{text}");
+        for number in ["-14.25", "-14.31", "12.00"] {
+            assert!(words.iter().any(|w| w == number), "{number} on\n{text}");
+        }
+        // Where they fit, the names come back.
+        let wide = screen(&m, 160, 48).join("\n");
+        assert!(wide.contains(left) && wide.contains(right), "{wide}");
+    }
+
+    #[test]
+    fn columns_give_way_in_order_as_the_terminal_narrows_and_none_is_cut() {
+        let m = sitl_model();
+        let mut before = usize::MAX;
+        for width in (30..=200).rev() {
+            let table = ServoTable::lay_out(&m.servos, width);
+            let shown: Vec<Column> = table.columns.iter().map(|c| c.0).collect();
+            let needs = table.columns.iter().map(|c| c.1 + 1).sum::<usize>() - 1;
+            let essential = [
+                Column::Servo,
+                Column::Position,
+                Column::Error,
+                Column::State,
+            ];
+            assert!(
+                needs <= width || shown == essential,
+                "{width}: {shown:?} need {needs}"
+            );
+            assert!(
+                shown.len() <= before,
+                "{width}: a column came back narrower"
+            );
+            before = shown.len();
+            let dropped = GIVE_WAY.iter().any(|c| !shown.contains(c));
+            let histories = shown.contains(&Column::ErrorHistory);
+            assert!(!(dropped && histories), "{width}: {shown:?}");
+            if shown.contains(&Column::CurrentHistory) {
+                assert!(histories, "{width}: {shown:?}");
+            }
+            for &(column, w) in &table.columns {
+                assert!(
+                    w >= width_of(column.header()),
+                    "{width}: {column:?} header cut"
+                );
+                for servo in &m.servos {
+                    let cell = ServoTable::cell(servo, column, table.labels, w);
+                    assert!(width_of(&cell) <= w, "{width}: {cell} cut to {w}");
+                }
+            }
+        }
+        // At 80 columns the airframe's rows lose only their histories.
+        let at_80 = ServoTable::lay_out(&m.servos, 78);
+        assert_eq!(at_80.columns.len(), 10, "{at_80:?}");
+        assert!(!at_80.labels);
+    }
+
+    #[test]
+    fn the_log_shows_its_latest_lines_whole() {
+        let log: Vec<String> = ["one two three", "four", "five six seven eight"]
+            .map(String::from)
+            .into();
+        // In lines of 12: "one two" "  three", "four", "five six" "  seven" "  eight".
+        let four = ["four", "five six", "  seven", "  eight"];
+        assert_eq!(latest_whole(&log, 12, 4), four);
+        assert_eq!(
+            latest_whole(&log, 12, 5),
+            four,
+            "not from the middle of a line"
+        );
+        assert_eq!(latest_whole(&log, 12, 6).len(), 6);
+        // The latest alone is taller than the box: its start.
+        assert_eq!(latest_whole(&log, 12, 2), ["five six", "  seven"]);
+        assert!(latest_whole(&log, 12, 0).is_empty());
+    }
+
+    #[test]
+    fn long_lines_wrap_at_blanks_and_long_words_are_cut_where_the_line_ends() {
+        assert_eq!(wrap("servo 4 online", 80), ["servo 4 online"]);
+        assert_eq!(
+            wrap("bus thread woke 0.6 ms late", 12),
+            ["bus thread", "  woke 0.6", "  ms late"]
+        );
+        assert_eq!(wrap("abcdefghijkl", 8), ["abcdefgh", "  ijkl"]);
+        assert_eq!(wrap("", 8), [""]);
+        assert_eq!(wrap(" INFO servo", 20), ["INFO servo"]);
     }
 
     #[test]

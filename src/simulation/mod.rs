@@ -142,8 +142,13 @@ pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
         tokio::spawn(table::show(view_rx.clone(), true))
     } else {
         let view = view_rx.clone();
+        let labels = cfg
+            .servos
+            .iter()
+            .map(|s| (s.name.clone(), s.label.clone()))
+            .collect();
         tokio::spawn(async move {
-            if let Err(e) = live::show(view.clone()).await {
+            if let Err(e) = live::show(view.clone(), labels).await {
                 // A terminal the view cannot drive still gets the plain table.
                 tracing::warn!("live view: {e}; printing the table instead");
                 table::show(view, true).await;
