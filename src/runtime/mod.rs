@@ -488,6 +488,12 @@ impl Bridge {
                     self.core.param_set_done(&set, result, Instant::now());
                 }
                 Input::BusEvent(bus, event) => {
+                    let bus_name = self.buses.handles[bus].name();
+                    if event.is_trouble() {
+                        tracing::warn!(bus = %bus_name, "{event}");
+                    } else {
+                        tracing::info!(bus = %bus_name, "{event}");
+                    }
                     if let Some(e) = bridge_event(&self.cfg, &self.buses, bus, &event) {
                         self.core.event(e, Instant::now());
                     }

@@ -128,11 +128,11 @@ impl LiveModel {
                 "autopilot {s}/{c}   output rate asked: {:.0} Hz   failsafe: {}{}",
                 view.output_rate_hz,
                 if view.failsafe { "ACTIVE" } else { "no" },
-                super::table::signing_text(view)
+                super::table::drops_text(view)
             ),
             None => format!(
                 "waiting for the autopilot's heartbeat{}",
-                super::table::signing_text(view)
+                super::table::drops_text(view)
             ),
         };
         self.failsafe = view.failsafe;

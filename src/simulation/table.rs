@@ -12,20 +12,28 @@ fn opt(v: Option<f32>, width: usize, decimals: usize) -> String {
     }
 }
 
-/// With signing on, what the links dropped (appended to the autopilot line); empty otherwise.
-pub fn signing_text(view: &BridgeView) -> String {
-    if view.signing_drops.is_empty() {
-        return String::new();
+/// What the links dropped, appended to the autopilot line: with signing on, the incoming
+/// messages refused; and the outgoing ones a link was too slow for (see
+/// [`crate::mavlink::outbox`]), once there are any. Empty when there is nothing to say.
+pub fn drops_text(view: &BridgeView) -> String {
+    let mut text = String::new();
+    if !view.signing_drops.is_empty() {
+        let sum = |f: fn(&crate::mavlink::signing::DropCounts) -> u64| {
+            view.signing_drops.iter().map(f).sum::<u64>()
+        };
+        let _ = write!(
+            text,
+            "   signed, dropped: {} unsigned, {} bad signature, {} old timestamp",
+            sum(|d| d.unsigned),
+            sum(|d| d.bad_signature),
+            sum(|d| d.old_timestamp)
+        );
     }
-    let sum = |f: fn(&crate::mavlink::signing::DropCounts) -> u64| {
-        view.signing_drops.iter().map(f).sum::<u64>()
-    };
-    format!(
-        "   signed, dropped: {} unsigned, {} bad signature, {} old timestamp",
-        sum(|d| d.unsigned),
-        sum(|d| d.bad_signature),
-        sum(|d| d.old_timestamp)
-    )
+    if view.send_drops.iter().any(|d| *d > 0) {
+        let per_link: Vec<String> = view.send_drops.iter().map(u64::to_string).collect();
+        let _ = write!(text, "   unsent (link too slow): {}", per_link.join("/"));
+    }
+    text
 }
 
 /// The table as text.
@@ -40,7 +48,7 @@ pub fn render(view: &BridgeView) -> String {
         "{autopilot}   output rate asked: {:.0} Hz   failsafe: {}{}",
         view.output_rate_hz,
         if view.failsafe { "ACTIVE" } else { "no" },
-        signing_text(view)
+        drops_text(view)
     );
     let _ = writeln!(
         out,
@@ -144,5 +152,17 @@ mod tests {
             first.ends_with("signed, dropped: 5 unsigned, 1 bad signature, 4 old timestamp"),
             "{first}"
         );
+    }
+
+    #[test]
+    fn the_autopilot_line_shows_unsent_messages_per_link_once_there_are_any() {
+        let mut view = BridgeView {
+            send_drops: vec![0, 0],
+            ..BridgeView::default()
+        };
+        assert!(!render(&view).contains("unsent"));
+        view.send_drops = vec![0, 1234];
+        let first = render(&view).lines().next().unwrap_or("").to_string();
+        assert!(first.ends_with("unsent (link too slow): 0/1234"), "{first}");
     }
 }
