@@ -64,6 +64,9 @@ struct Scenario {
     rate: Rate,
     /// Telemetry limited to one poll per servo per this interval: an idle bus.
     quiet_telemetry: Option<Duration>,
+    /// Position and current read at this rate per servo (a mapping's `telemetry_hz`); `None`:
+    /// as often as the bus allows.
+    telemetry_hz: Option<f32>,
 }
 
 #[derive(Default)]
@@ -102,6 +105,10 @@ struct Row {
     late_wakeups: u64,
     /// CPU time the hypervisor gave to others during the window (all CPUs), if known.
     stolen_ms: Option<u64>,
+    /// The bus thread's CPU time per transaction (request and reply, or long packet), µs.
+    cpu_per_tx_us: f64,
+    /// The bus thread's CPU time, % of one core.
+    cpu_percent: f64,
     /// Busy goals over the bound while the bus thread was woken late.
     over_bus_late: u64,
     /// Busy goals over the bound while the simulator handed bytes over late (and the bus thread
@@ -170,6 +177,7 @@ fn main() {
                         servos,
                         rate,
                         quiet_telemetry: None,
+                        telemetry_hz: None,
                     })
             })
         })
@@ -177,7 +185,15 @@ fn main() {
             baud,
             servos: 4,
             rate: Rate::Hz50,
+            quiet_telemetry: None,
+            telemetry_hz: Some(50.0),
+        }))
+        .chain([BaudRate::B115200, BaudRate::B460800].map(|baud| Scenario {
+            baud,
+            servos: 4,
+            rate: Rate::Hz50,
             quiet_telemetry: Some(Duration::from_secs(1)),
+            telemetry_hz: None,
         }))
         .collect();
 
@@ -200,6 +216,7 @@ fn main() {
         servos: 1,
         rate: Rate::Hz50,
         quiet_telemetry: None,
+        telemetry_hz: None,
     }));
     let mut rows = Vec::new();
     for s in scenarios.into_iter().filter(|s| label(s).contains(&filter)) {
@@ -242,10 +259,11 @@ fn label(s: &Scenario) -> String {
         "{:>6} {} {}",
         s.baud.bits_per_second(),
         s.servos,
-        match (s.rate, s.quiet_telemetry) {
-            (_, Some(_)) => "50 Hz, idle bus",
-            (Rate::Hz50, None) => "50 Hz",
-            (Rate::Max, None) => "max",
+        match (s.rate, s.quiet_telemetry, s.telemetry_hz) {
+            (_, Some(_), _) => "50 Hz, idle bus".to_string(),
+            (_, None, Some(hz)) => format!("50 Hz, telem {hz}"),
+            (Rate::Hz50, None, None) => "50 Hz".to_string(),
+            (Rate::Max, None, None) => "max".to_string(),
         }
     )
 }
@@ -285,6 +303,9 @@ async fn run(s: Scenario) -> Result<Row, String> {
         cfg.telemetry_min_interval = interval;
         cfg.verify_interval = interval;
     }
+    if let Some(hz) = s.telemetry_hz {
+        cfg.telemetry_min_interval = Duration::from_secs_f32(1.0 / hz);
+    }
     let bus = spawn_bus(cfg, sim.path());
 
     // Start-up: every servo online, force on at 0.
@@ -315,12 +336,14 @@ async fn run(s: Scenario) -> Result<Row, String> {
     };
     tokio::time::sleep(WARM_UP).await;
     let t0 = Instant::now();
-    let c0 = bus.status().counters;
+    let status0 = bus.status();
+    let c0 = status0.counters;
     let steal0 = stolen_ms();
     let stats0 = sim.handle().stats();
     tokio::time::sleep(WINDOW).await;
     let t1 = Instant::now();
-    let c1 = bus.status().counters;
+    let status1 = bus.status();
+    let c1 = status1.counters;
     let steal1 = stolen_ms();
     let stats1 = sim.handle().stats();
     stop.store(true, Ordering::SeqCst);
@@ -550,6 +573,13 @@ async fn run(s: Scenario) -> Result<Row, String> {
     row.timeouts = c1.timeouts - c0.timeouts;
     row.collisions = stats1.collisions - stats0.collisions;
     row.late_wakeups = c1.late_wakeups - c0.late_wakeups;
+    let transactions = |c: &lj9da_bridge::bus::BusCounters| {
+        c.polls + c.motion_polls + c.position_polls + c.other_requests + c.command_frames
+    };
+    let cpu = status1.thread_cpu.saturating_sub(status0.thread_cpu);
+    row.cpu_per_tx_us =
+        cpu.as_secs_f64() * 1e6 / (transactions(&c1) - transactions(&c0)).max(1) as f64;
+    row.cpu_percent = cpu.as_secs_f64() * 100.0 / (t1 - t0).as_secs_f64();
     row.stolen_ms = steal0.zip(steal1).map(|(a, b)| b.saturating_sub(a));
     Ok(row)
 }
@@ -776,13 +806,13 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
     let header = [
         "frames/s", "polls/s", "pos/s", "telem Hz", "wire %", "limit %", "→goal", "gap", "p50",
         "p99", "max", "idle p50", "busy exc", "busy exc", "on wire", "t/o", "coll", "sim", "bus",
-        "stolen",
+        "stolen", "CPU/tx", "CPU",
     ];
     let header2 = [
         "", "", "", "/servo", "", "", "idle %", "p50", "", "", "", "", "p99", "max", "/set", "",
-        "", "late",
+        "", "late", "late", "", "µs", "%",
     ];
-    let widths = [8, 7, 6, 9, 6, 7, 6, 5, 7, 7, 7, 8, 8, 8, 11, 4, 4, 4, 4, 6];
+    let widths = [8, 7, 6, 9, 6, 7, 6, 5, 7, 7, 7, 8, 8, 8, 11, 4, 4, 4, 4, 6, 6, 5];
     let line = |label: &str, cells: &[String]| {
         let mut out = format!("{label:<27}");
         for (cell, w) in cells.iter().zip(widths) {
@@ -824,6 +854,8 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
                 r.sim_late.to_string(),
                 r.late_wakeups.to_string(),
                 r.stolen_ms.map_or("?".into(), |ms| ms.to_string()),
+                format!("{:.1}", r.cpu_per_tx_us),
+                format!("{:.2}", r.cpu_percent),
             ],
         );
     }
@@ -864,6 +896,12 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
         "the instant it slept until (the machine did not run it in time). stolen: CPU time the"
     );
     println!("hypervisor ran something else in the window (/proc/stat steal, 10 ms ticks).");
+    println!(
+        "CPU/tx: the bus thread's CPU time (getrusage RUSAGE_THREAD, read by the thread when it"
+    );
+    println!(
+        "publishes its status) per transaction (request and reply, or long packet); CPU: of one core."
+    );
     println!();
     println!(
         "Targets (anchor: ArduPilot Volz at 115 200 bit/s, 4 servos: ~128 commands/s, ~10 Hz telemetry):"

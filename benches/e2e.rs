@@ -1,14 +1,28 @@
 //! End-to-end benchmark: a MAVLink sender on UDP → the bridge process (`lj9da-bridge run`) →
 //! simulated LJ9DA41s on pseudo-terminals at 115 200 bit/s.
 //!
-//! Cases: 4 and 8 servos on port 0 at 50 Hz and 400 Hz; and 4 servos on two ports (channels 1–3
-//! in SERVO_OUTPUT_RAW port 0, channel 17 in port 1, sent back to back as ArduPilot does) at
-//! 50 Hz, from a steady autopilot, one whose ticks jitter by ±1 ms (uniform), and one that sends
-//! 5 % of its messages 3–8 ms late; each two-port case quiet and beside two CPU hogs
-//! (`E2E_HOGS=n` changes how many). For each it prints:
+//! Cases: 4 and 8 servos on port 0 at 50 Hz and 400 Hz, every message a new goal; and 4 servos
+//! on two ports (channels 1–3 in SERVO_OUTPUT_RAW port 0, channel 17 in port 1, sent back to
+//! back as ArduPilot does) at 50 Hz, each quiet and beside two CPU hogs (`E2E_HOGS=n` changes
+//! how many), in these scenarios:
+//! - `sweep` (steady), `±1ms` (ticks jitter uniformly), `5%late` (one message in twenty 3–8 ms
+//!   late): every message changes its goals;
+//! - `steps`: the outputs hold still and both ports step every 0.8 s, as a pilot's input after a
+//!   steady spell (every message is still sent; only the steps are measured);
+//! - `gap`: steps every 0.3 s; port 1 falls silent for 2.5 s after a third of the run;
+//! - `rate`: steps every 0.3 s; for 3 s after a third of the run the stream slows to 12.5 Hz
+//!   (ArduPilot during a parameter or log transfer), then comes back to 50 Hz;
+//! - `garbled`: the sweep with a fifth of servo 1's replies corrupted.
+//!
+//! For each it prints:
 //! - latency from a SERVO_OUTPUT_RAW datagram's send to the first byte of the long packet that
-//!   carries its goal, as the simulated serial device saw it (p50, p99, max), per port and for
-//!   all goals;
+//!   carries its goal, as the simulated serial device saw it (p50, p90, p99, max), per port and
+//!   for all goals; in `gap` and `rate`, `settled` repeats port 0's p50/p90 for the steps sent
+//!   at least 1 s after the disturbance began or ended;
+//! - `behind`: the share of measured messages sent while a request was on the wire and its
+//!   reply had not ended (the bus master's part of a latency, as against the process's);
+//! - `polls`: position-and-current reads per servo per second, and `s1 ok`: servo 1's
+//!   uncorrupted replies per second (compare `garbled` with `sweep` of the same run);
 //! - the share of output messages whose goal reached the wire, with superseded goals (a newer
 //!   message's goal went out first) counted apart, and goals lost;
 //! - the telemetry rate per servo seen by a ground station (`<label>_pos` NAMED_VALUE_FLOAT);
@@ -19,11 +33,13 @@
 //!
 //! Every message gives servo 1 a goal that no other message in the window has, so each message
 //! is matched to the packet that carried it. Run: `cargo bench --bench e2e` (`E2E_SECONDS=N`
-//! sets the length of each case, default 6 s; `E2E_CASES=4x50,8x400` runs only those cases).
+//! sets the length of each case, default 6 s; `E2E_CASES=4x50,8x400` runs only those cases;
+//! `E2E_BRIDGE=path` runs another build of the bridge, e.g. the code before a change).
 
 use lj9da_bridge::config::Config;
 use lj9da_bridge::mavlink::outputs::servo_output_raw;
-use lj9da_sim::{BusEvent, SimBus, SimConfig};
+use lj9da_sim::protocol::host_packet::ShortForm;
+use lj9da_sim::{BusEvent, Fault, HostPacket, SimBus, SimConfig};
 use mavlink::dialects::common::*;
 use mavlink::{MavConnection, MavHeader};
 use std::io::Write;
@@ -50,12 +66,64 @@ impl Jitter {
     }
 }
 
+/// What the autopilot's outputs do over a run.
+#[derive(Clone, Copy, PartialEq)]
+enum Scenario {
+    /// Every message changes its goals.
+    Sweep(Jitter),
+    /// The outputs hold still; both ports step every 0.8 s.
+    Steps,
+    /// Steps every 0.3 s; port 1 silent for 2.5 s after a third of the run.
+    PortGap,
+    /// Steps every 0.3 s; 12.5 Hz for 3 s after a third of the run, then 50 Hz again.
+    RateDrop,
+    /// The steady sweep with a fifth of servo 1's replies corrupted.
+    Garbled,
+}
+
+impl Scenario {
+    fn name(self) -> &'static str {
+        match self {
+            Scenario::Sweep(j) => j.name(),
+            Scenario::Steps => "steps",
+            Scenario::PortGap => "gap",
+            Scenario::RateDrop => "rate",
+            Scenario::Garbled => "garbled",
+        }
+    }
+
+    fn jitter(self) -> Jitter {
+        match self {
+            Scenario::Sweep(j) => j,
+            _ => Jitter::None,
+        }
+    }
+
+    /// Ticks between steps (`None`: every message changes).
+    fn step_every(self) -> Option<usize> {
+        match self {
+            Scenario::Sweep(_) | Scenario::Garbled => None,
+            Scenario::Steps => Some(40),
+            Scenario::PortGap | Scenario::RateDrop => Some(15),
+        }
+    }
+
+    /// Seconds the case runs at least (a disturbance and the time after it).
+    fn min_seconds(self) -> f64 {
+        match self {
+            Scenario::PortGap | Scenario::RateDrop => 10.0,
+            Scenario::Steps => 8.0,
+            _ => 0.0,
+        }
+    }
+}
+
 struct Case {
     servos: usize,
     rate_hz: f64,
     /// 1: every servo on port 0; 2: the last servo on channel 17 (port 1).
     ports: u8,
-    jitter: Jitter,
+    scenario: Scenario,
     hogs: usize,
 }
 
@@ -66,10 +134,14 @@ impl Case {
             self.servos,
             self.rate_hz,
             if self.ports == 2 { "x2p" } else { "" },
-            match self.jitter {
-                Jitter::None => "",
-                Jitter::Uniform1Ms => "j",
-                Jitter::Late5Pct => "l",
+            match self.scenario {
+                Scenario::Sweep(Jitter::None) => "",
+                Scenario::Sweep(Jitter::Uniform1Ms) => "j",
+                Scenario::Sweep(Jitter::Late5Pct) => "l",
+                Scenario::Steps => "s",
+                Scenario::PortGap => "g",
+                Scenario::RateDrop => "r",
+                Scenario::Garbled => "c",
             }
         )
     }
@@ -82,6 +154,15 @@ struct Outcome {
     lost: usize,
     /// Per port: latencies of the goals that reached the wire.
     latencies_us: [Vec<f64>; 2],
+    /// Port 0's latencies of the steps sent at least 1 s after a disturbance began or ended
+    /// (`gap`, `rate`).
+    settled_us: Vec<f64>,
+    /// Measured messages sent while a request was on the wire and its reply had not ended.
+    behind: usize,
+    /// Position-and-current reads per servo per second.
+    polls_hz: f64,
+    /// Servo 1's uncorrupted replies per second.
+    servo1_ok_hz: f64,
     telemetry_hz: f64,
     /// `None` where /proc could not be read.
     cpu_percent: Option<f64>,
@@ -154,6 +235,12 @@ fn mapping(servos: usize, ports: u8, port: &str, ap: u16, gcs: u16) -> String {
     s
 }
 
+/// The bridge binary to run: `$E2E_BRIDGE` (another build, e.g. the code before a change, to
+/// compare in the same hour), else this build's.
+fn bridge_exe() -> std::ffi::OsString {
+    std::env::var_os("E2E_BRIDGE").unwrap_or_else(|| env!("CARGO_BIN_EXE_lj9da-bridge").into())
+}
+
 /// User + system CPU time of `pid` in seconds, and its peak resident set in KiB; each `None`
 /// where /proc does not tell.
 fn cpu_and_rss(pid: u32) -> (Option<f64>, Option<u64>) {
@@ -217,7 +304,7 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
     let markers = [config.servos[0].clone(), config.servos[marked - 1].clone()];
     let goal_of =
         |port: usize, us: u16| markers[port].map_pwm(us).expect("bench PWM is in range").0;
-    let mut bridge: Child = Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
+    let mut bridge: Child = Command::new(bridge_exe())
         .args(["run", "--config"])
         .arg(&cfg_path)
         .env("RUST_LOG", "warn")
@@ -273,67 +360,84 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
         }
         std::thread::sleep(Duration::from_millis(50));
     }
+    if case.scenario == Scenario::Garbled {
+        sim.handle()
+            .inject(Some(1), Fault::CorruptReplies { probability: 0.2 });
+    }
     while events.try_recv().is_ok() {}
     let (cpu0, _) = cpu_and_rss(pid);
     let t_start = Instant::now();
 
-    // The schedule: (send instant, port, message number), in send order.
-    let period = Duration::from_secs_f64(1.0 / case.rate_hz);
-    let n = (seconds * case.rate_hz) as usize;
-    let mut rng = XorShift(0x2545_F491_4F6C_DD1D);
-    let t0 = Instant::now() + Duration::from_millis(20);
-    let mut schedule = Vec::with_capacity(n * usize::from(case.ports));
-    for i in 1..=n {
-        let tick = t0 + period * i as u32;
-        let tick = match case.jitter {
-            Jitter::Uniform1Ms => {
-                let offset = Duration::from_secs_f64(rng.unit() * 2e-3);
-                tick + offset - Duration::from_millis(1)
-            }
-            _ => tick,
-        };
-        for port in 0..case.ports {
-            let mut at = tick + Duration::from_micros(100) * u32::from(port);
-            if case.jitter == Jitter::Late5Pct && rng.unit() < 0.05 {
-                at += Duration::from_secs_f64(3e-3 + rng.unit() * 5e-3);
-            }
-            schedule.push((at, port, i));
-        }
-    }
-    schedule.sort_by_key(|s| s.0);
-    let mut sends: Vec<(Instant, usize, i16)> = Vec::with_capacity(schedule.len());
-    for (k, (at, port, i)) in schedule.into_iter().enumerate() {
-        while Instant::now() < at {
+    let schedule = schedule(case, seconds, Instant::now() + Duration::from_millis(20));
+    let mut sends: Vec<Send> = Vec::with_capacity(schedule.len());
+    for (k, m) in schedule.into_iter().enumerate() {
+        while Instant::now() < m.at {
             std::hint::spin_loop();
         }
         if k % (case.rate_hz as usize) == 0 {
             let _ = ap.send(&header, &heartbeat);
         }
-        let msg = outputs(case.servos, marked, port, i);
+        let msg = outputs(case.servos, marked, m.port, m.value);
         let t = Instant::now();
         ap.send(&header, &msg).expect("send");
-        let servo = if port == 0 { 1 } else { marked };
-        sends.push((
-            t,
-            usize::from(port),
-            goal_of(usize::from(port), pwm(servo, i, marked)),
-        ));
+        if m.changed {
+            let servo = if m.port == 0 { 1 } else { marked };
+            sends.push(Send {
+                at: t,
+                port: usize::from(m.port),
+                goal: goal_of(usize::from(m.port), pwm(servo, m.value, marked)),
+                settled: m.settled,
+            });
+        }
     }
     std::thread::sleep(Duration::from_millis(300));
     let run_time = t_start.elapsed().as_secs_f64();
     let (cpu1, rss) = cpu_and_rss(pid);
 
-    // Long packets seen by the simulated servos: (first byte instant, each marker's goal).
+    // Long packets seen by the simulated servos: (first byte instant, each marker's goal);
+    // requests on the wire: (first byte, end of the reply or of the request); reads of
+    // position and current; servo 1's good replies.
     let mut packets: [Vec<(Instant, i16)>; 2] = [Vec::new(), Vec::new()];
     let mut collisions = 0;
+    let mut requests: Vec<(Instant, Instant)> = Vec::new();
+    let mut open_request: Option<(Instant, Instant, u8)> = None;
+    let (mut polls, mut servo1_ok) = (0usize, 0usize);
     while let Ok(e) = events.try_recv() {
         match e {
             BusEvent::Packet(p) => {
+                if let Some((start, end, _)) = open_request.take() {
+                    requests.push((start, end.min(p.first_byte_at)));
+                }
                 let goals = p.packet.goal_positions();
                 for (port, id) in [(0, 1u8), (1, marked as u8)] {
                     if let Some((_, g)) = goals.iter().find(|(i, _)| *i == id) {
                         packets[port].push((p.first_byte_at, *g));
                     }
+                }
+                if let HostPacket::Short(short) = &p.packet {
+                    if let ShortForm::Request {
+                        address: 0x2A,
+                        length,
+                        ..
+                    } = short.form()
+                        && length >= 8
+                    {
+                        polls += 1;
+                    }
+                    if short.id != 0xFF {
+                        open_request = Some((p.first_byte_at, p.completed_at, short.id));
+                    }
+                }
+            }
+            BusEvent::Reply(r) => {
+                if let Some((start, _, id)) = open_request
+                    && id == r.id
+                {
+                    requests.push((start, r.last_byte_at));
+                    open_request = None;
+                }
+                if r.id == 1 && !r.corrupted {
+                    servo1_ok += 1;
                 }
             }
             BusEvent::Collision { .. } => collisions += 1,
@@ -343,11 +447,11 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
     // A message's goal is on the wire when a packet after its send carries it.
     let carried: Vec<Option<Instant>> = sends
         .iter()
-        .map(|(t, port, goal)| {
-            packets[*port]
+        .map(|m| {
+            packets[m.port]
                 .iter()
                 .find(|(at, g)| {
-                    *at >= *t && *g == *goal && at.duration_since(*t) < Duration::from_secs(1)
+                    *at >= m.at && *g == m.goal && at.duration_since(m.at) < Duration::from_secs(1)
                 })
                 .map(|(at, _)| *at)
         })
@@ -357,17 +461,30 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
     let mut later_on_wire = [false; 2];
     let mut superseded_flags = vec![false; sends.len()];
     for k in (0..sends.len()).rev() {
-        let port = sends[k].1;
+        let port = sends[k].port;
         superseded_flags[k] = carried[k].is_none() && later_on_wire[port];
         later_on_wire[port] |= carried[k].is_some();
     }
+    let behind = sends
+        .iter()
+        .filter(|m| {
+            requests
+                .iter()
+                .any(|(start, end)| *start <= m.at && m.at < *end)
+        })
+        .count();
     let (mut on_wire, mut superseded, mut lost) = (0, 0, 0);
     let mut latencies_us = [Vec::new(), Vec::new()];
-    for (k, (t, port, _)) in sends.iter().enumerate() {
+    let mut settled_us = Vec::new();
+    for (k, m) in sends.iter().enumerate() {
         match carried[k] {
             Some(at) => {
                 on_wire += 1;
-                latencies_us[*port].push(at.duration_since(*t).as_secs_f64() * 1e6);
+                let us = at.duration_since(m.at).as_secs_f64() * 1e6;
+                latencies_us[m.port].push(us);
+                if m.settled && m.port == 0 {
+                    settled_us.push(us);
+                }
             }
             None if superseded_flags[k] => superseded += 1,
             None => lost += 1,
@@ -389,12 +506,94 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
         superseded,
         lost,
         latencies_us,
+        settled_us,
+        behind,
+        polls_hz: polls as f64 / run_time / case.servos as f64,
+        servo1_ok_hz: servo1_ok as f64 / run_time,
         telemetry_hz,
         cpu_percent: cpu0.zip(cpu1).map(|(a, b)| (b - a) / run_time * 100.0),
         peak_rss_kib: rss,
         collisions,
         alarms,
     }
+}
+
+/// One output message of the autopilot.
+struct Message {
+    at: Instant,
+    port: u8,
+    /// Which values it carries (see [`pwm`]).
+    value: usize,
+    /// Its values differ from its port's message before it: its latency is measured.
+    changed: bool,
+    /// Sent at least 1 s after the scenario's disturbance began or ended.
+    settled: bool,
+}
+
+/// A measured message as it was sent.
+struct Send {
+    at: Instant,
+    port: usize,
+    goal: i16,
+    settled: bool,
+}
+
+/// The messages of `case` from `t0`, in send order.
+fn schedule(case: &Case, seconds: f64, t0: Instant) -> Vec<Message> {
+    let period = Duration::from_secs_f64(1.0 / case.rate_hz);
+    let n = (seconds * case.rate_hz) as usize;
+    let mut rng = XorShift(0x2545_F491_4F6C_DD1D);
+    // The disturbance of `gap` and `rate`: from a third of the run, 2.5 s or 3 s long.
+    let (from, until) = (n / 3, n / 3 + (case.rate_hz * 2.5) as usize);
+    let until = if case.scenario == Scenario::RateDrop {
+        n / 3 + (case.rate_hz * 3.0) as usize
+    } else {
+        until
+    };
+    let settle = case.rate_hz as usize;
+    let mut out = Vec::with_capacity(n * usize::from(case.ports));
+    for i in 1..=n {
+        let disturbed = (from..until).contains(&i);
+        if case.scenario == Scenario::RateDrop && disturbed && (i - from) % 4 != 0 {
+            continue;
+        }
+        let tick = t0 + period * i as u32;
+        let tick = match case.scenario.jitter() {
+            Jitter::Uniform1Ms => {
+                let offset = Duration::from_secs_f64(rng.unit() * 2e-3);
+                tick + offset - Duration::from_millis(1)
+            }
+            _ => tick,
+        };
+        let (value, changed) = match case.scenario.step_every() {
+            None => (i, true),
+            Some(every) => (i / every, i % every == 0),
+        };
+        let settled = match case.scenario {
+            Scenario::PortGap | Scenario::RateDrop => {
+                (i >= from + settle && i < until) || i >= until + settle
+            }
+            _ => false,
+        };
+        for port in 0..case.ports {
+            if case.scenario == Scenario::PortGap && port == 1 && disturbed {
+                continue;
+            }
+            let mut at = tick + Duration::from_micros(100) * u32::from(port);
+            if case.scenario.jitter() == Jitter::Late5Pct && rng.unit() < 0.05 {
+                at += Duration::from_secs_f64(3e-3 + rng.unit() * 5e-3);
+            }
+            out.push(Message {
+                at,
+                port,
+                value,
+                changed,
+                settled,
+            });
+        }
+    }
+    out.sort_by_key(|m| m.at);
+    out
 }
 
 /// SERVO_OUTPUT_RAW of message `i` for `port`: channels 1–16 (port 0) or 17–32 (port 1).
@@ -442,9 +641,10 @@ fn main() {
     println!(
         "end-to-end: UDP SERVO_OUTPUT_RAW → lj9da-bridge process → simulated LJ9DA41s on ptys, 115200 bit/s"
     );
-    println!("machine: {cpu}, {cores} cores; {seconds} s per case");
+    println!("machine: {cpu}, {cores} cores; {seconds} s per case (at least 8–10 s for steps, gap, rate)");
+    println!("bridge: {}", bridge_exe().to_string_lossy());
     println!(
-        "{:<12} {:>6} {:>6} {:>8} {:>6} {:>5} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>6} {:>7} {:>8} {:>5} {:>6}",
+        "{:<16} {:>4} {:>5} {:>7} {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>7} {:>7} {:>6} {:>6} {:>6} {:>6} {:>8} {:>4} {:>6}",
         "case",
         "hogs",
         "sent",
@@ -452,14 +652,19 @@ fn main() {
         "supsd",
         "lost",
         "p0 p50",
+        "p0 p90",
         "p0 p99",
         "p0 max",
         "p1 p50",
-        "p1 p99",
-        "all p99",
+        "allp99",
+        "settled",
+        "behind",
+        "polls",
+        "s1 ok",
         "telem",
         "CPU %",
-        "RSS KiB",
+        "RSS M",
+        "",
         "talk",
         "alarms"
     );
@@ -469,17 +674,25 @@ fn main() {
             servos,
             rate_hz,
             ports: 1,
-            jitter: Jitter::None,
+            scenario: Scenario::Sweep(Jitter::None),
             hogs: 0,
         });
     }
-    for jitter in [Jitter::None, Jitter::Uniform1Ms, Jitter::Late5Pct] {
+    for scenario in [
+        Scenario::Sweep(Jitter::None),
+        Scenario::Sweep(Jitter::Uniform1Ms),
+        Scenario::Sweep(Jitter::Late5Pct),
+        Scenario::Steps,
+        Scenario::PortGap,
+        Scenario::RateDrop,
+        Scenario::Garbled,
+    ] {
         for h in [0, hogs] {
             cases.push(Case {
                 servos: 4,
                 rate_hz: 50.0,
                 ports: 2,
-                jitter,
+                scenario,
                 hogs: h,
             });
         }
@@ -499,32 +712,48 @@ fn main() {
             continue;
         }
         let hogs = Hogs::start(case.hogs);
-        let mut o = run_case(&case, seconds);
+        let mut o = run_case(&case, seconds.max(case.scenario.min_seconds()));
         drop(hogs);
         for l in &mut o.latencies_us {
             l.sort_by(f64::total_cmp);
         }
+        o.settled_us.sort_by(f64::total_cmp);
         let mut all: Vec<f64> = o.latencies_us.concat();
         all.sort_by(f64::total_cmp);
         let [p0, p1] = &o.latencies_us;
+        let settled = if o.settled_us.is_empty() {
+            "-".to_string()
+        } else {
+            format!(
+                "{}/{}",
+                us(percentile(&o.settled_us, 0.5)),
+                us(percentile(&o.settled_us, 0.9))
+            )
+        };
         println!(
-            "{:<12} {:>6} {:>6} {:>7.1}% {:>6} {:>5} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>6.1} {:>7} {:>8} {:>5} {:>6}",
-            format!("{} {}", case.name(), case.jitter.name()),
+            "{:<16} {:>4} {:>5} {:>6.1}% {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>6.1}% {:>7.1} {:>6.1} {:>6.1} {:>6} {:>6} {:>8} {:>4} {:>6}",
+            format!("{} {}", case.name(), case.scenario.name()),
             case.hogs,
             o.sent,
             o.on_wire as f64 * 100.0 / o.sent.max(1) as f64,
             o.superseded,
             o.lost,
             us(percentile(p0, 0.5)),
+            us(percentile(p0, 0.9)),
             us(percentile(p0, 0.99)),
             us(p0.last().copied().unwrap_or(f64::NAN)),
             us(percentile(p1, 0.5)),
-            us(percentile(p1, 0.99)),
             us(percentile(&all, 0.99)),
+            settled,
+            o.behind as f64 * 100.0 / o.sent.max(1) as f64,
+            o.polls_hz,
+            o.servo1_ok_hz,
             o.telemetry_hz,
             o.cpu_percent
                 .map_or("n/m".to_string(), |c| format!("{c:.2}")),
-            o.peak_rss_kib.map_or("n/m".to_string(), |r| r.to_string()),
+            o.peak_rss_kib
+                .map_or("n/m".to_string(), |r| format!("{:.1}", r as f64 / 1024.0)),
+            "",
             o.collisions,
             o.alarms.len(),
         );
@@ -537,6 +766,9 @@ fn main() {
         "latencies in µs, from the autopilot's send to the first byte of the long packet; n/m: not measured (/proc unreadable)"
     );
     println!(
-        "targets (4 servos, 50 Hz, two ports): quiet p0 p50 ≤ 150, p0 p99 ≤ 1500, p1 p50 ≤ 2000, all p99 ≤ 2500, CPU ≤ 1.5 %; two hogs p0 p50 ≤ 300, p0 p99 ≤ 4000, p1 p50 ≤ 3000, all p99 ≤ 4000; no talk-over, alarm or lost goal"
+        "behind: measured messages sent while a request and its reply held the wire; polls: position-and-current reads per servo per second; s1 ok: servo 1's good replies per second; settled: port 0 p50/p90 of the steps 1 s or more after a disturbance began or ended"
+    );
+    println!(
+        "targets (4 servos, 50 Hz, two ports): steps behind ≤ 10 % (20 % with hogs), p50/p90 ≤ 250/1000 µs (400/2000 with hogs); p1 p50 ≤ 400 (600); p0 p99 ≤ 1500 (3000), all p99 ≤ 2500 (4000); garbled s1 ok ≥ 70 % of the sweep's; polls ≥ 60 Hz (50); no talk-over, alarm or lost goal"
     );
 }

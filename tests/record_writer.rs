@@ -395,6 +395,8 @@ fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
         }],
         counters: BusCounters::default(),
         at: t0 + Duration::from_millis(30),
+        telemetry_asked_hz: None,
+        thread_cpu: Duration::ZERO,
     };
     let full = sample(100);
     let mut moved = full;

@@ -697,7 +697,8 @@ impl Driver {
                 || now.saturating_duration_since(self.published_at) >= STATUS_REFRESH;
             due.then(|| core.master.status_at(now))
         };
-        if let Some(status) = status {
+        if let Some(mut status) = status {
+            status.thread_cpu = thread_cpu_time();
             self.published_at = now;
             (self.observe)(&status);
             self.status.send_replace(status);
@@ -802,6 +803,20 @@ impl Driver {
             drop(self.shared.sleep(core, wake_at));
         }
     }
+}
+
+/// The CPU time the calling thread has used (`getrusage(RUSAGE_THREAD)`; zero where refused).
+fn thread_cpu_time() -> Duration {
+    use nix::libc;
+    // SAFETY: `usage` is a valid rusage for getrusage to fill; RUSAGE_THREAD is the caller.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    if unsafe { libc::getrusage(libc::RUSAGE_THREAD, &mut usage) } != 0 {
+        return Duration::ZERO;
+    }
+    let time = |t: libc::timeval| {
+        Duration::from_secs(t.tv_sec as u64) + Duration::from_micros(t.tv_usec as u64)
+    };
+    time(usage.ru_utime) + time(usage.ru_stime)
 }
 
 /// Waits on the port for the last bytes of a reply, without the core locked. It holds its own

@@ -617,7 +617,11 @@ impl BusMaster {
 
     /// While a goal is expected too soon for the next servo's poll: the ready servo whose
     /// position was read longest ago, if a read of its position alone still ends in time.
+    /// Only on a bus that reads as often as it can (a telemetry rate leaves the bus idle).
     fn position_read_fitting(&self, at: Instant) -> Option<usize> {
+        if !self.cfg.telemetry_min_interval.is_zero() {
+            return None;
+        }
         let start = self.wire_free_at.max(at);
         let (i, _) = self
             .servos
@@ -973,6 +977,9 @@ impl BusMaster {
                 .collect(),
             counters: self.counters,
             at: now,
+            telemetry_asked_hz: (!self.cfg.telemetry_min_interval.is_zero())
+                .then(|| 1.0 / self.cfg.telemetry_min_interval.as_secs_f32()),
+            thread_cpu: Duration::ZERO,
         }
     }
 

@@ -158,6 +158,11 @@ pub struct BusStatus {
     pub counters: BusCounters,
     /// The time the snapshot describes (ages are measured to it).
     pub at: Instant,
+    /// Position-and-current reads asked per servo per second (`None`: as often as the bus
+    /// allows, `telemetry_hz = "max"`).
+    pub telemetry_asked_hz: Option<f32>,
+    /// CPU time the bus thread has used so far (zero for a bare bus master).
+    pub thread_cpu: std::time::Duration,
 }
 
 impl BusStatus {

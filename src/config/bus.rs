@@ -1,12 +1,50 @@
 //! The `[[bus]]` tables: one RS485 line, its serial port and its baud rate.
 
 use super::error::{ConfigError, Scope};
-use super::raw::RawBus;
+use super::raw::{RawBus, RawRate};
 use crate::protocol::BaudRate;
 use std::path::PathBuf;
+use std::time::Duration;
 
 /// The largest turnaround allowance a bus may ask for.
 const TURNAROUND_MAX_MS: f64 = 100.0;
+
+/// How often each servo's position and current are read.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TelemetryRate {
+    /// At most this many times a second per servo; the rest of the bus is left idle, so that
+    /// goals find it free and the bridge's CPU stays low.
+    Hz(f32),
+    /// In every moment the goals leave free (`"max"`): 80–90 reads a second per servo with four
+    /// servos at 115 200 bit/s, over 200 at 460 800.
+    Max,
+}
+
+impl TelemetryRate {
+    /// 50 Hz: the bridge's own consumers need less (the ground station gets values at 1 Hz and
+    /// on change, the flight record keeps about 14 a second, stall detection needs tens), and a
+    /// 20 ms picture of each rod is finer than any control loop that reads it back.
+    pub const DEFAULT: TelemetryRate = TelemetryRate::Hz(50.0);
+    /// The rates a mapping may ask for (besides `"max"`).
+    pub const RANGE_HZ: std::ops::RangeInclusive<f32> = 1.0..=1000.0;
+
+    /// The shortest time between two reads of one servo (zero: as often as the bus allows).
+    pub fn min_interval(self) -> Duration {
+        match self {
+            TelemetryRate::Hz(hz) => Duration::from_secs_f64(1.0 / f64::from(hz)),
+            TelemetryRate::Max => Duration::ZERO,
+        }
+    }
+}
+
+impl std::fmt::Display for TelemetryRate {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            TelemetryRate::Hz(hz) => write!(f, "{hz} Hz"),
+            TelemetryRate::Max => f.write_str("max"),
+        }
+    }
+}
 
 /// One `[[bus]]` table.
 #[derive(Debug, Clone, PartialEq)]
@@ -22,6 +60,9 @@ pub struct BusSection {
     /// Extra time allowed for a reply to start, in ms, on top of the wire time: the servos'
     /// Return Delay Time plus the adapter's latency. `None`: the bus master's own allowance.
     pub turnaround_ms: Option<f32>,
+    /// How often each servo's position and current are read (`telemetry_hz`, a number or
+    /// `"max"`); default [`TelemetryRate::DEFAULT`].
+    pub telemetry: TelemetryRate,
 }
 
 /// A bus or servo name: 1–32 ASCII letters, digits, `_` or `-`.
@@ -90,13 +131,56 @@ impl BusSection {
                 }
             }
         };
+        let telemetry = match &raw.telemetry_hz {
+            None => TelemetryRate::DEFAULT,
+            Some(rate) => telemetry_rate(rate.get_ref()).map_err(|reason| {
+                scope.error_on(rate, "telemetry_hz", reason)
+            })?,
+        };
         Ok(BusSection {
             name: raw.name.get_ref().clone(),
             port: PathBuf::from(port),
             baud,
             turnaround_ms,
+            telemetry,
         })
     }
+}
+
+fn telemetry_rate(raw: &RawRate) -> Result<TelemetryRate, String> {
+    let range = TelemetryRate::RANGE_HZ;
+    match raw {
+        RawRate::Word(w) if w == "max" => Ok(TelemetryRate::Max),
+        RawRate::Word(w) => Err(format!(
+            "\"{w}\" is not a rate; write a number of Hz ({}–{}) or \"max\"",
+            range.start(),
+            range.end()
+        )),
+        RawRate::Hz(hz) if hz.is_finite() && range.contains(&(*hz as f32)) => {
+            Ok(TelemetryRate::Hz(*hz as f32))
+        }
+        RawRate::Hz(hz) => Err(format!(
+            "{hz} Hz is outside {}–{} Hz; write \"max\" to read as often as the bus allows",
+            range.start(),
+            range.end()
+        )),
+    }
+}
+
+/// About how many position-and-current reads a second each of `servos` servos can have on a
+/// bus at `baud` that also carries a long packet every `goal_period`: the wire time of one
+/// read (request, reply, and a reaction allowance), shared among the servos, in the time the
+/// goals leave, less a fifth for start-up, full and verify reads and the gaps the goals'
+/// rhythm keeps free.
+pub fn max_telemetry_hz(baud: BaudRate, servos: usize, goal_period: Duration) -> f32 {
+    if servos == 0 {
+        return 0.0;
+    }
+    // Request 8 bytes, reply 16 (registers 42–49), 150 µs to react.
+    let read = Duration::from_nanos(baud.wire_time_ns(24)) + Duration::from_micros(150);
+    let frame = Duration::from_nanos(baud.wire_time_ns(8 + 5 * servos));
+    let free = 1.0 - frame.as_secs_f64() / goal_period.as_secs_f64().max(1e-3);
+    (free.max(0.0) * 0.8 / (read.as_secs_f64() * servos as f64)) as f32
 }
 
 #[cfg(test)]
@@ -110,5 +194,36 @@ mod tests {
         assert!(check_name("").unwrap_err().contains("empty"));
         assert!(check_name("left wing").unwrap_err().contains("' '"));
         assert!(check_name(&"x".repeat(33)).unwrap_err().contains("32"));
+    }
+
+    fn rate(toml: &str) -> Result<TelemetryRate, String> {
+        #[derive(serde::Deserialize)]
+        struct T {
+            telemetry_hz: RawRate,
+        }
+        telemetry_rate(&toml::from_str::<T>(toml).unwrap().telemetry_hz)
+    }
+
+    #[test]
+    fn a_telemetry_rate_is_a_number_of_hz_or_max() {
+        assert_eq!(rate("telemetry_hz = 50"), Ok(TelemetryRate::Hz(50.0)));
+        assert_eq!(rate("telemetry_hz = 12.5"), Ok(TelemetryRate::Hz(12.5)));
+        assert_eq!(rate("telemetry_hz = \"max\""), Ok(TelemetryRate::Max));
+        assert!(rate("telemetry_hz = 0").unwrap_err().contains("outside 1–1000 Hz"));
+        assert!(rate("telemetry_hz = 5000").unwrap_err().contains("\"max\""));
+        assert!(rate("telemetry_hz = \"fast\"").unwrap_err().contains("not a rate"));
+        assert_eq!(TelemetryRate::Hz(50.0).min_interval(), Duration::from_millis(20));
+        assert_eq!(TelemetryRate::Max.min_interval(), Duration::ZERO);
+    }
+
+    #[test]
+    fn the_wire_allows_fewer_reads_per_servo_with_more_servos_and_more_at_a_higher_baud() {
+        let p = Duration::from_millis(20);
+        let four = max_telemetry_hz(BaudRate::B115200, 4, p);
+        // 24 bytes at 115 200 bit/s and 150 µs: 2.23 ms a read.
+        assert!((75.0..95.0).contains(&four), "{four}");
+        assert!(max_telemetry_hz(BaudRate::B115200, 8, p) < four / 1.8);
+        assert!(max_telemetry_hz(BaudRate::B460800, 4, p) > 2.5 * four);
+        assert_eq!(max_telemetry_hz(BaudRate::B115200, 0, p), 0.0);
     }
 }

@@ -27,6 +27,7 @@
 //! | `[[bus]]` | `name`, `port` | (required) | the bus's name and serial port |
 //! | | `baud` | 115200 | one of the servo's rates, 9600 … 460800 |
 //! | | `turnaround_ms` | bus master's own | extra reply allowance (return delay + adapter latency) |
+//! | | `telemetry_hz` | 50 | reads of position and current per servo per second, or `"max"` (every free moment) |
 //! | `[[servo]]` | `name`, `bus`, `id`, `channel` | (required) | name, bus, ID 1–127, output 1–32 |
 //! | | `label` | name if ≤ 6 chars, else `s<n>` | NAMED_VALUE_FLOAT prefix, ≤ 6 chars |
 //! | | `pwm_min_us`, `pwm_trim_us`, `pwm_max_us` | 920, 1520, 2120 | ↔ −25, 0, +25 mm |
@@ -58,7 +59,7 @@ mod table;
 pub mod warnings;
 
 pub use bridge::{BridgeSection, ExitAction};
-pub use bus::BusSection;
+pub use bus::{BusSection, TelemetryRate};
 pub use error::{ConfigError, Location};
 pub use mavlink::{MavlinkConfig, Quantity, Source, TelemetryConfig};
 pub use record::RecordSection;

@@ -71,6 +71,15 @@ pub(crate) struct RawBus {
     pub port: Spanned<String>,
     pub baud: Option<Spanned<i64>>,
     pub turnaround_ms: Option<Spanned<f64>>,
+    pub telemetry_hz: Option<Spanned<RawRate>>,
+}
+
+/// A rate in Hz, or a word such as `"max"`.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+pub(crate) enum RawRate {
+    Hz(f64),
+    Word(String),
 }
 
 #[derive(Debug, Deserialize)]

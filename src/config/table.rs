@@ -64,15 +64,27 @@ pub(super) fn resolved_table(config: &Config) -> String {
         config.bridge.on_exit
     ));
 
-    let mut buses = vec![row(["bus", "port", "baud", "turnaround", "servos"])];
+    let mut buses = vec![row([
+        "bus",
+        "port",
+        "baud",
+        "turnaround",
+        "servos",
+        "telemetry (wire allows)",
+    ])];
+    let goal_period =
+        std::time::Duration::from_secs_f64(1.0 / f64::from(config.mavlink.output_rate_hz));
     for bus in &config.buses {
+        let servos = config.servos_on(&bus.name).count();
+        let allowed = super::bus::max_telemetry_hz(bus.baud, servos, goal_period);
         buses.push(vec![
             bus.name.clone(),
             bus.port.display().to_string(),
             bus.baud.to_string(),
             bus.turnaround_ms
                 .map_or("default".to_string(), |ms| format!("{ms} ms")),
-            config.servos_on(&bus.name).count().to_string(),
+            servos.to_string(),
+            format!("{} (≈ {allowed:.0} Hz)", bus.telemetry),
         ]);
     }
     out.push_str(&aligned(&buses));

@@ -1,7 +1,9 @@
 //! What `lj9da-bridge check` warns about: a mapping that is valid but will not do what its
 //! author expects with a given autopilot or ground station. Warnings never refuse a file.
 
-use super::{Config, Source};
+use super::bus::{TelemetryRate, max_telemetry_hz};
+use super::{BusSection, Config, Source};
+use std::time::Duration;
 
 /// How many NAMED_VALUE_FLOAT names Mission Planner shows (`CurrentState.cs` keeps 20 slots,
 /// taken in order of arrival): a name past the 20th never appears in its Status tab.
@@ -16,7 +18,28 @@ pub fn warnings(cfg: &Config) -> Vec<String> {
     out.extend(px4_port_1_channels(cfg));
     out.extend(mission_planner_names(cfg));
     out.extend(unsigned_outside_links(cfg));
+    out.extend(cfg.buses.iter().filter_map(|b| telemetry_beyond_wire(cfg, b)));
     out
+}
+
+/// A bus whose `telemetry_hz` asks more reads than its wire carries: it reads as often as it
+/// can, which is what `"max"` says. (Said by `check`, and once when the bridge starts.)
+pub fn telemetry_beyond_wire(cfg: &Config, bus: &BusSection) -> Option<String> {
+    let TelemetryRate::Hz(asked) = bus.telemetry else {
+        return None;
+    };
+    let servos = cfg.servos_on(&bus.name).count();
+    let goal_period = Duration::from_secs_f64(1.0 / f64::from(cfg.mavlink.output_rate_hz));
+    let allowed = max_telemetry_hz(bus.baud, servos, goal_period);
+    // The estimate is rough: only a rate clearly beyond it is worth a word.
+    (servos > 0 && asked > allowed * 1.15).then(|| {
+        format!(
+            "warning: bus \"{}\" asks telemetry_hz = {asked} for {servos} servo(s) at {}, \
+             where the wire carries about {allowed:.0} reads a second per servo beside \
+             {} Hz of goals: it reads as often as it can (telemetry_hz = \"max\" says so).",
+            bus.name, bus.baud, cfg.mavlink.output_rate_hz
+        )
+    })
 }
 
 /// Whether a connection address stays on this computer: a network address whose host is

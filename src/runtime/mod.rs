@@ -117,6 +117,10 @@ impl Buses {
             if let Some(ms) = bus.turnaround_ms {
                 bus_cfg.turnaround = std::time::Duration::from_secs_f32(ms / 1000.0);
             }
+            bus_cfg.telemetry_min_interval = bus.telemetry.min_interval();
+            if let Some(w) = crate::config::warnings::telemetry_beyond_wire(cfg, bus) {
+                tracing::warn!("{}", w.trim_start_matches("warning: "));
+            }
             let port = ports
                 .get(&bus.name)
                 .cloned()

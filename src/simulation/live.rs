@@ -77,6 +77,10 @@ pub struct BusRow {
     pub bad_replies_percent: Option<f32>,
     /// Times the bus thread ran late since it started.
     pub late_wakeups: u64,
+    /// Position-and-current reads per servo per second: achieved (between the last two views)
+    /// and asked (`None`: as often as the bus allows).
+    pub reads_hz: Option<f32>,
+    pub reads_asked_hz: Option<f32>,
 }
 
 /// Everything the live view shows.
@@ -171,9 +175,12 @@ impl LiveModel {
 
     fn bus_row(&self, index: usize, bus: &BusStatus) -> BusRow {
         let c = &bus.counters;
-        let (utilisation_percent, bad_replies_percent) = match self.previous.get(index) {
+        let (utilisation_percent, bad_replies_percent, reads_hz) = match self.previous.get(index) {
             Some((at, p)) if bus.at > *at => {
                 let elapsed_ns = bus.at.duration_since(*at).as_nanos() as u64;
+                let reads = (c.polls + c.motion_polls).saturating_sub(p.polls + p.motion_polls);
+                let servos = bus.servos.len().max(1) as f32;
+                let reads_hz = reads as f32 / (elapsed_ns as f32 * 1e-9) / servos;
                 let asked = (c.polls + c.motion_polls + c.position_polls + c.other_requests)
                     .saturating_sub(p.polls + p.motion_polls + p.position_polls + p.other_requests);
                 // A garbled reply is a timeout too (and a bad sum): counted once.
@@ -181,9 +188,10 @@ impl LiveModel {
                 (
                     percent(c.wire_busy_ns.saturating_sub(p.wire_busy_ns), elapsed_ns),
                     percent(bad, asked),
+                    (!bus.servos.is_empty()).then_some(reads_hz),
                 )
             }
-            _ => (None, None),
+            _ => (None, None, None),
         };
         BusRow {
             name: bus.name.clone(),
@@ -191,6 +199,8 @@ impl LiveModel {
             utilisation_percent,
             bad_replies_percent,
             late_wakeups: c.late_wakeups,
+            reads_hz,
+            reads_asked_hz: bus.telemetry_asked_hz,
         }
     }
 }
@@ -477,18 +487,19 @@ impl ServoTable {
     }
 }
 
-/// A bus's line: its name padded to `name_width`.
+/// A bus's line: its name padded to `name_width` (and `PORT LOST` while it is), its wire use,
+/// bad replies, position-and-current reads per servo per second achieved and asked, and the
+/// bus thread's late wake-ups.
 fn bus_line(b: &BusRow, name_width: usize) -> String {
     format!(
-        "{:<name_width$}  {}  wire use {:>6}  bad replies {:>6}  late wake-ups {}",
+        "{:<name_width$}{}  wire {:>6}  bad replies {:>6}  reads {}/{} Hz  late wake-ups {}",
         b.name,
-        if b.port_open {
-            "port open"
-        } else {
-            "PORT LOST"
-        },
+        if b.port_open { "" } else { "  PORT LOST" },
         share(b.utilisation_percent),
         share(b.bad_replies_percent),
+        b.reads_hz.map_or_else(|| "-".to_string(), |hz| format!("{hz:.0}")),
+        b.reads_asked_hz
+            .map_or_else(|| "max".to_string(), |hz| format!("{hz:.0}")),
         b.late_wakeups
     )
 }
@@ -732,6 +743,8 @@ mod tests {
             servos: vec![],
             counters,
             at,
+            telemetry_asked_hz: Some(50.0),
+            thread_cpu: Duration::ZERO,
         }
     }
 
