@@ -18,6 +18,7 @@ use crate::bus::{
 };
 use crate::config::edit::MappingFile;
 use crate::config::{Config, ExitAction};
+use crate::mavlink::outbox::Queued;
 use crate::mavlink::param_server::ParamSet;
 use crate::mavlink::signing::{self, DropCounts};
 use crate::mavlink::{
@@ -310,6 +311,13 @@ pub fn mapping_file(path: Option<&std::path::Path>) -> Option<MappingFile> {
 
 type EditResult = (ParamSet, Result<Config, String>);
 
+/// The least time between two writes of the mapping file: at most 10 a second, whoever sends
+/// PARAM_SETs and however fast the disk. Changes that come meanwhile wait in the core, one per
+/// parameter, the latest winning (see [`crate::mavlink::param_server`]): a burst of sets costs
+/// about one write per parameter it names and per 100 ms it lasts, and a ground station
+/// loading twenty parameters at once has them all answered within about 2 s.
+pub const MAPPING_WRITE_SPACING: std::time::Duration = std::time::Duration::from_millis(100);
+
 /// Parameter changes are written into the mapping file on a thread of their own: syncing a
 /// file to an SD card can take tens of milliseconds, which the goals must not wait for. The
 /// changes are made one after the other, in the order they came; the core hands over one at a
@@ -326,7 +334,14 @@ fn spawn_mapping_writer(
             let spawned = std::thread::Builder::new()
                 .name("mapping-writer".into())
                 .spawn(move || {
+                    let mut last_write: Option<Instant> = None;
                     while let Some(set) = edit_rx.blocking_recv() {
+                        if let Some(wait) = last_write.map(|at| {
+                            (at + MAPPING_WRITE_SPACING).saturating_duration_since(Instant::now())
+                        }) {
+                            std::thread::sleep(wait);
+                        }
+                        last_write = Some(Instant::now());
                         let result = file.apply(&set.edits).map_err(|e| {
                             tracing::warn!("parameter {} = {} refused: {e}", set.name, set.value);
                             e.reason()
@@ -595,17 +610,14 @@ impl Bridge {
                 }
                 self.texts.push_back(text);
             }
-            let header = match out.sender {
-                Some((system, component)) => MavHeader {
-                    system_id: u32::from(system),
-                    component_id: component,
-                    sequence: 0,
-                },
-                None => header,
+            let queued = Queued {
+                header: out.sender.unwrap_or(header),
+                message: out.message,
+                relayed: out.sender.is_some(),
             };
             for (i, writer) in self.writers.iter().enumerate() {
                 if out.link.is_none_or(|l| l == i) {
-                    writer.queue(header, out.message.clone());
+                    writer.queue(queued.clone());
                 }
             }
         }
