@@ -129,7 +129,7 @@ fn the_autopilots_heartbeat_is_relayed_to_the_ground_station_link_under_its_own_
         vec![Outgoing {
             message: autopilot_heartbeat(),
             link: Some(1),
-            sender: Some(AP),
+            sender: Some(header(AP)),
         }]
     );
     // Another system's heartbeat, or the autopilot's heard on the GCS link, is not relayed.
@@ -1246,4 +1246,84 @@ fn a_core_without_an_autopilot_has_nothing_due_and_wakes_once_one_is_found() {
     c.handle_timeout(later, &[]);
     assert!(!messages(&mut c).is_empty());
     assert!(c.poll_timeout().is_some_and(|t| t > later));
+}
+
+#[test]
+fn only_the_autopilots_link_moves_the_servos() {
+    // The autopilot's outputs and output commands count on its link (0) alone: on the
+    // ground-station link (1) the autopilot's ids are anyone's, e.g. its frames replayed.
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    messages(&mut c);
+    commands(&mut c);
+    c.handle_message(1, &header(AP), &outputs(0, &[(1, 1568)]), t0);
+    assert!(commands(&mut c).is_empty(), "outputs on the GCS link");
+    let gcs = (255, 190);
+    let servo = command_long(
+        MavCmd::MAV_CMD_DO_SET_SERVO,
+        [9.0, 1568.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        (7, 140),
+    );
+    c.handle_message(1, &header(gcs), &servo, t0);
+    assert!(commands(&mut c).is_empty(), "DO_SET_SERVO on the GCS link");
+    assert_eq!(
+        acks(&messages(&mut c)),
+        vec![(
+            MavCmd::MAV_CMD_DO_SET_SERVO,
+            MavResult::MAV_RESULT_DENIED,
+            255,
+            190
+        )]
+    );
+    let nan = f32::NAN;
+    let actuator = |to| {
+        command_long(
+            MavCmd::MAV_CMD_DO_SET_ACTUATOR,
+            [nan, 0.5, nan, nan, nan, nan, 0.0],
+            to,
+        )
+    };
+    c.handle_message(1, &header(gcs), &actuator((7, 140)), t0);
+    assert!(
+        commands(&mut c).is_empty(),
+        "DO_SET_ACTUATOR on the GCS link"
+    );
+    assert_eq!(acks(&messages(&mut c))[0].1, MavResult::MAV_RESULT_DENIED);
+    // Broadcast: ignored without an answer, as a broadcast the bridge does not carry out.
+    c.handle_message(1, &header(gcs), &actuator((0, 0)), t0);
+    assert!(commands(&mut c).is_empty());
+    assert!(acks(&messages(&mut c)).is_empty());
+    // The same from the autopilot's link moves the servos.
+    c.handle_message(0, &header(gcs), &servo, t0);
+    assert_eq!(commands(&mut c), vec![(2, Goal::Position(MmCenti(200)))]);
+    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1568)]), t0);
+    assert!(!commands(&mut c).is_empty());
+    // An autopilot is learned from its link only.
+    let mut fresh = core(t0);
+    fresh.handle_message(1, &header(AP), &autopilot_heartbeat(), t0);
+    assert_eq!(fresh.autopilot(), None);
+    fresh.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
+    assert_eq!(fresh.autopilot(), Some(AP));
+}
+
+#[test]
+fn the_relayed_heartbeat_keeps_the_autopilots_sequence_number() {
+    let t0 = Instant::now();
+    let mapping = MAPPING.replace(
+        "failsafe_timeout_ms = 500",
+        "failsafe_timeout_ms = 500\ngcs = \"udpout:127.0.0.1:14550\"",
+    );
+    let mut c = BridgeCore::new(Config::parse(&mapping, "t.toml").unwrap(), t0);
+    for sequence in [17, 18] {
+        let from = MavHeader {
+            sequence,
+            ..header(AP)
+        };
+        c.handle_message(0, &from, &autopilot_heartbeat(), t0);
+        let relayed: Vec<_> = messages(&mut c)
+            .into_iter()
+            .filter_map(|o| o.sender)
+            .collect();
+        assert_eq!(relayed, vec![from]);
+    }
 }

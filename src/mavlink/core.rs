@@ -4,8 +4,12 @@
 //!
 //! Rules:
 //! - Only output messages from the autopilot (configured, or learned from the first
-//!   autopilot HEARTBEAT) are obeyed; commands (COMMAND_LONG or COMMAND_INT) are obeyed and
-//!   answered when addressed to the bridge, and broadcast ones as [`super::commands`] says.
+//!   autopilot HEARTBEAT on the autopilot's link) that arrive on the autopilot's link
+//!   ([`AUTOPILOT_LINK`]) are obeyed; commands (COMMAND_LONG or COMMAND_INT) are obeyed and
+//!   answered when addressed to the bridge, and broadcast ones as [`super::commands`] says,
+//!   but DO_SET_SERVO and DO_SET_ACTUATOR only from the autopilot's link: on the
+//!   ground-station link ([`GCS_LINK`]) they move nothing (DENIED when addressed to the
+//!   bridge).
 //! - Each output channel maps to its servos through the PWM-mode law of the mapping file; a
 //!   value that means "no output" makes the servo hold.
 //! - The output stream is requested with MAV_CMD_SET_MESSAGE_INTERVAL until it arrives. A
@@ -60,10 +64,12 @@ pub const GCS_LINK: LinkId = 1;
 pub struct Outgoing {
     pub message: MavMessage,
     pub link: Option<LinkId>,
-    /// `None`: the bridge's own message, sent with [`BridgeCore::header`]. `Some((system,
-    /// component))`: another's message relayed under its own ids (the autopilot's HEARTBEAT
-    /// on the ground-station link).
-    pub sender: Option<(u8, u8)>,
+    /// `None`: the bridge's own message, sent with [`BridgeCore::header`] and numbered by the
+    /// link. `Some(header)`: another's message relayed under its own ids and sequence number
+    /// (the autopilot's HEARTBEAT on the ground-station link), so that a ground station
+    /// counting each component's sequence sees neither the bridge's numbers in the
+    /// autopilot's nor gaps in the bridge's.
+    pub sender: Option<MavHeader>,
 }
 
 /// Rates tried, highest first, after the autopilot denies the requested one for its rate:
@@ -244,6 +250,7 @@ impl BridgeCore {
         let from = (system_id, header.component_id);
         if let MavMessage::HEARTBEAT(hb) = msg {
             if self.autopilot.is_none()
+                && link == AUTOPILOT_LINK
                 && hb.autopilot != MavAutopilot::MAV_AUTOPILOT_INVALID
                 && hb.mavtype != MavType::MAV_TYPE_GCS
                 && header.component_id == self.cfg.mavlink.autopilot_component_id
@@ -262,7 +269,7 @@ impl BridgeCore {
                 self.outgoing.push_back(Outgoing {
                     message: msg.clone(),
                     link: Some(GCS_LINK),
-                    sender: Some(from),
+                    sender: Some(*header),
                 });
             }
             return;
@@ -293,7 +300,8 @@ impl BridgeCore {
         if let MavMessage::COMMAND_ACK(ack) = msg {
             let to_us =
                 ack.target_component == 0 || ack.target_component == self.cfg.mavlink.component_id;
-            if Some(from) == self.autopilot
+            if link == AUTOPILOT_LINK
+                && Some(from) == self.autopilot
                 && ack.command == MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
                 && to_us
             {
@@ -301,7 +309,9 @@ impl BridgeCore {
             }
             return;
         }
-        if Some(from) != self.autopilot {
+        // The autopilot's outputs are taken from the autopilot's link alone: its ids on another
+        // link are anyone's (a replay, a ground station's mistake).
+        if link != AUTOPILOT_LINK || Some(from) != self.autopilot {
             return;
         }
         let values = match (msg, self.cfg.mavlink.source) {
@@ -410,7 +420,15 @@ impl BridgeCore {
         if how == Handling::Ignore {
             return;
         }
+        let moves = matches!(
+            cmd.command,
+            MavCmd::MAV_CMD_DO_SET_SERVO | MavCmd::MAV_CMD_DO_SET_ACTUATOR
+        );
         let result = match cmd.command {
+            // What moves the servos comes from the autopilot's link only: the ground-station
+            // link is a view (see docs/mavlink.md). Addressed to the bridge: DENIED, so that
+            // the ground station says why; a broadcast is ignored, as any other refusal of one.
+            _ if moves && link != AUTOPILOT_LINK => MavResult::MAV_RESULT_DENIED,
             MavCmd::MAV_CMD_DO_SET_SERVO => self.do_set_servo(cmd.params[0], cmd.params[1], now),
             MavCmd::MAV_CMD_DO_SET_ACTUATOR => self.do_set_actuator(&cmd.params, now),
             MavCmd::MAV_CMD_REQUEST_MESSAGE if how == Handling::Own => {

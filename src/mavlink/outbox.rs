@@ -19,10 +19,21 @@ use std::collections::VecDeque;
 /// what follows it; a parameter list is paced by the parameter server, not queued here whole.
 pub const CAPACITY: usize = 256;
 
+/// A message waiting in an outbox.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Queued {
+    pub header: MavHeader,
+    pub message: MavMessage,
+    /// Another component's message relayed (the autopilot's HEARTBEAT): it keeps the sequence
+    /// number of `header`. The bridge's own messages are numbered by the link as they leave,
+    /// so that what is dropped here leaves no gap.
+    pub relayed: bool,
+}
+
 /// One link's messages waiting to be sent, oldest first.
 #[derive(Debug)]
 pub struct Outbox {
-    queue: VecDeque<(MavHeader, MavMessage)>,
+    queue: VecDeque<Queued>,
     capacity: usize,
     dropped: u64,
 }
@@ -55,17 +66,17 @@ impl Outbox {
     }
 
     /// Queue `message`; when full, drop the oldest telemetry first, else the oldest message.
-    pub fn push(&mut self, header: MavHeader, message: MavMessage) {
+    pub fn push(&mut self, queued: Queued) {
         if self.queue.len() >= self.capacity {
-            let oldest_telemetry = self.queue.iter().position(|(_, m)| is_telemetry(m));
+            let oldest_telemetry = self.queue.iter().position(|q| is_telemetry(&q.message));
             self.queue.remove(oldest_telemetry.unwrap_or(0));
             self.dropped += 1;
         }
-        self.queue.push_back((header, message));
+        self.queue.push_back(queued);
     }
 
     /// The oldest message waiting.
-    pub fn pop(&mut self) -> Option<(MavHeader, MavMessage)> {
+    pub fn pop(&mut self) -> Option<Queued> {
         self.queue.pop_front()
     }
 
@@ -102,22 +113,27 @@ mod tests {
         })
     }
 
+    fn own(message: MavMessage) -> Queued {
+        Queued {
+            header: MavHeader::default(),
+            message,
+            relayed: false,
+        }
+    }
+
     fn contents(o: &mut Outbox) -> Vec<MavMessage> {
-        std::iter::from_fn(|| o.pop().map(|(_, m)| m)).collect()
+        std::iter::from_fn(|| o.pop().map(|q| q.message)).collect()
     }
 
     #[test]
     fn a_full_outbox_drops_the_oldest_telemetry_and_keeps_answers() {
         let mut o = Outbox::with_capacity(4);
-        o.push(MavHeader::default(), value(1));
-        o.push(MavHeader::default(), answer(1));
-        o.push(MavHeader::default(), value(2));
-        o.push(MavHeader::default(), answer(2));
-        o.push(
-            MavHeader::default(),
-            MavMessage::COMMAND_ACK(COMMAND_ACK_DATA::default()),
-        );
-        o.push(MavHeader::default(), value(3));
+        o.push(own(value(1)));
+        o.push(own(answer(1)));
+        o.push(own(value(2)));
+        o.push(own(answer(2)));
+        o.push(own(MavMessage::COMMAND_ACK(COMMAND_ACK_DATA::default())));
+        o.push(own(value(3)));
         assert_eq!(o.dropped(), 2);
         assert_eq!(o.len(), 4);
         assert_eq!(
@@ -135,7 +151,7 @@ mod tests {
     fn an_outbox_full_of_answers_drops_the_oldest_answer() {
         let mut o = Outbox::with_capacity(3);
         for n in 0..5 {
-            o.push(MavHeader::default(), answer(n));
+            o.push(own(answer(n)));
         }
         assert_eq!(o.dropped(), 2);
         assert_eq!(contents(&mut o), vec![answer(2), answer(3), answer(4)]);
@@ -146,7 +162,7 @@ mod tests {
     fn nothing_is_dropped_below_the_capacity_and_order_is_kept() {
         let mut o = Outbox::default();
         for n in 0..CAPACITY as u32 {
-            o.push(MavHeader::default(), value(n));
+            o.push(own(value(n)));
         }
         assert_eq!(o.dropped(), 0);
         let got = contents(&mut o);

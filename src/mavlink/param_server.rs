@@ -4,15 +4,22 @@
 //! - A list or a read is addressed to the bridge's system (or 0) and its component (or 0,
 //!   which is how QGroundControl asks every component at once). A set must name the bridge's
 //!   component: a broadcast set is for the autopilot.
-//! - A list is answered on the link it came in on, [`PER_BURST`] values every [`BURST_PERIOD`],
-//!   so that a telemetry radio is not flooded. A value already waiting to go out on that link is
-//!   not queued twice: a flood of requests costs at most one pass over the table.
+//! - A list is answered on the link it came in on, one value every [`LIST_PERIOD`] (20 a
+//!   second, whatever the links), so that it fits a telemetry radio beside everything else the
+//!   aircraft sends. A value already waiting to go out on that link is not queued twice: a
+//!   flood of requests costs at most one pass over the table.
 //! - A read of an unknown name or index gets no answer (the protocol's rule); a set of an
 //!   unknown name gets a STATUSTEXT.
 //! - A set that passes [`Param::edits`] is handed to the caller ([`ParamServer::poll_set`]),
 //!   which changes the mapping file and reports back with [`ParamServer::set_done`]. Either way
 //!   the current value goes out on every link (the protocol asks for a broadcast), and a
 //!   refusal also says why in a STATUSTEXT.
+//! - What a sender can make the bridge write is bounded: one change is being written at a time
+//!   ([`ParamServer::poll_set`] gives the next only after [`ParamServer::set_done`]), and at
+//!   most one waits per parameter, the latest (a later set replaces it). A set is compared
+//!   with the value the file will hold once the change being written is done, not with the
+//!   current one: a ground station's retry during a slow write is not a second write. So a
+//!   burst of sets costs at most two writes per parameter it names.
 
 use super::LinkId;
 use super::params::{PARAM_TYPE, Param, ParamTable, ServoInfo};
@@ -23,10 +30,11 @@ use mavlink::dialects::common::{MavMessage, MavParamType, MavSeverity, PARAM_VAL
 use std::collections::{HashSet, VecDeque};
 use std::time::{Duration, Instant};
 
-/// How many PARAM_VALUEs of a list go out together.
-pub const PER_BURST: usize = 10;
-/// The time between two bursts of a list (at most 1 000 values a second).
-pub const BURST_PERIOD: Duration = Duration::from_millis(10);
+/// The time between two PARAM_VALUEs of a list: 20 a second, 740 bytes/s (1 000 signed), an
+/// eighth to a sixth of a 57 600-baud telemetry radio (≈ 5.7 kB/s for everything the aircraft
+/// sends). Four servos' 61 parameters take 3 s, eight servos' 117 take 6 s; QGroundControl
+/// and MAVProxy ask again only for values missing after seconds without any.
+pub const LIST_PERIOD: Duration = Duration::from_millis(50);
 
 /// A change asked for by PARAM_SET, for the caller to make in the mapping file.
 #[derive(Debug, Clone)]
@@ -52,8 +60,11 @@ pub struct ParamServer {
     table: ParamTable,
     queue: VecDeque<(LinkId, usize)>,
     queued: HashSet<(LinkId, usize)>,
-    next_burst: Instant,
+    next_value: Instant,
+    /// Changes waiting for the file: at most one per parameter.
     sets: VecDeque<ParamSet>,
+    /// The change being written: (parameter index, value).
+    writing: Option<(usize, f32)>,
 }
 
 impl ParamServer {
@@ -62,8 +73,9 @@ impl ParamServer {
             table: ParamTable::new(cfg),
             queue: VecDeque::new(),
             queued: HashSet::new(),
-            next_burst: now,
+            next_value: now,
             sets: VecDeque::new(),
+            writing: None,
         }
     }
 
@@ -144,22 +156,50 @@ impl ParamServer {
                     fit(format!("{name} {}: {refusal}", number(value))),
                 ),
             ],
-            Ok(edits) if edits.is_empty() || param.value(cfg, info) == value => vec![every_link],
             Ok(edits) => {
-                self.sets.push_back(ParamSet {
+                let waiting = self.sets.iter().position(|s| s.index == index);
+                let writing = self.writing.filter(|(i, _)| *i == index).map(|(_, v)| v);
+                if edits.is_empty() || writing.unwrap_or_else(|| param.value(cfg, info)) == value {
+                    // What the file will hold: no change waits for it. The write under way
+                    // answers when it is done.
+                    if let Some(at) = waiting {
+                        self.sets.remove(at);
+                    }
+                    return if writing.is_some() {
+                        Vec::new()
+                    } else {
+                        vec![every_link]
+                    };
+                }
+                let set = ParamSet {
                     index,
                     name,
                     value,
                     edits,
-                });
+                };
+                match waiting {
+                    Some(at) => self.sets[at] = set,
+                    None => self.sets.push_back(set),
+                }
                 Vec::new()
             }
         }
     }
 
-    /// The next change for the caller to make in the mapping file.
+    /// The next change for the caller to make in the mapping file; none while one is being
+    /// made (until [`ParamServer::set_done`]).
     pub fn poll_set(&mut self) -> Option<ParamSet> {
-        self.sets.pop_front()
+        if self.writing.is_some() {
+            return None;
+        }
+        let set = self.sets.pop_front()?;
+        self.writing = Some((set.index, set.value));
+        Some(set)
+    }
+
+    /// Changes waiting for the file, the one being written not counted.
+    pub fn sets_waiting(&self) -> usize {
+        self.sets.len()
     }
 
     /// How the change went: `Err` holds why the mapping file refused it (or could not be
@@ -173,6 +213,7 @@ impl ParamServer {
         after: &Config,
         info: &[ServoInfo],
     ) -> Vec<ParamOut> {
+        self.writing = None;
         match result {
             Ok(()) => {
                 let mut out: Vec<ParamOut> = self
@@ -203,28 +244,27 @@ impl ParamServer {
         }
     }
 
-    /// The values of a list due at `now`.
+    /// The value of a list due at `now`, if one is.
     pub fn due(&mut self, now: Instant) -> Vec<ParamOut> {
-        if self.queue.is_empty() || now < self.next_burst {
+        if now < self.next_value {
             return Vec::new();
         }
-        self.next_burst = now + BURST_PERIOD;
-        let n = self.queue.len().min(PER_BURST);
-        self.queue
-            .drain(..n)
-            .map(|(link, index)| {
-                self.queued.remove(&(link, index));
-                ParamOut::Value {
-                    link: Some(link),
-                    index,
-                }
-            })
-            .collect()
+        let Some((link, index)) = self.queue.pop_front() else {
+            return Vec::new();
+        };
+        self.queued.remove(&(link, index));
+        // Paced from when this value went, not from when it was due: a late wake-up does not
+        // make the next ones go faster.
+        self.next_value = now + LIST_PERIOD;
+        vec![ParamOut::Value {
+            link: Some(link),
+            index,
+        }]
     }
 
     /// When [`ParamServer::due`] has something to send.
     pub fn next_deadline(&self) -> Option<Instant> {
-        (!self.queue.is_empty()).then_some(self.next_burst)
+        (!self.queue.is_empty()).then_some(self.next_value)
     }
 
     /// The PARAM_VALUE of parameter `index`.
@@ -293,7 +333,11 @@ mod tests {
         })
     }
 
-    fn drain(server: &mut ParamServer, start: Instant) -> Vec<(Option<LinkId>, usize)> {
+    /// Every value of the lists queued, with when it went, calling `due` whenever it is due.
+    fn drain_timed(
+        server: &mut ParamServer,
+        start: Instant,
+    ) -> Vec<(Instant, Option<LinkId>, usize)> {
         let mut sent = Vec::new();
         let mut now = start;
         while let Some(at) = server.next_deadline() {
@@ -302,30 +346,101 @@ mod tests {
                 let ParamOut::Value { link, index } = out else {
                     panic!("{out:?}")
                 };
-                sent.push((link, index));
+                sent.push((now, link, index));
             }
         }
         sent
     }
 
+    fn drain(server: &mut ParamServer, start: Instant) -> Vec<(Option<LinkId>, usize)> {
+        drain_timed(server, start)
+            .into_iter()
+            .map(|(_, link, index)| (link, index))
+            .collect()
+    }
+
     #[test]
-    fn a_list_to_every_component_sends_each_value_once_in_paced_bursts() {
+    fn a_list_to_every_component_sends_each_value_once_paced_for_a_radio() {
         let cfg = cfg();
         let t0 = Instant::now();
         let mut server = ParamServer::new(&cfg, t0);
         assert!(server.handle(1, &list(0), US, &cfg, &[]).is_empty());
-        let first = server.due(t0);
-        assert_eq!(first.len(), PER_BURST);
-        assert!(server.due(t0).is_empty(), "the next burst waits");
-        assert_eq!(server.next_deadline(), Some(t0 + BURST_PERIOD));
-        let rest = drain(&mut server, t0);
-        assert_eq!(first.len() + rest.len(), server.table().len());
-        assert!(rest.iter().all(|(link, _)| *link == Some(1)));
-        let indexes: Vec<usize> = rest.iter().map(|(_, i)| *i).collect();
+        assert_eq!(server.due(t0).len(), 1);
+        assert!(server.due(t0).is_empty(), "the next value waits");
+        assert_eq!(server.next_deadline(), Some(t0 + LIST_PERIOD));
+        let rest = drain_timed(&mut server, t0);
+        let n = server.table().len();
+        assert_eq!(1 + rest.len(), n);
+        assert!(rest.iter().all(|(_, link, _)| *link == Some(1)));
+        let indexes: Vec<usize> = rest.iter().map(|(_, _, i)| *i).collect();
+        assert_eq!(indexes, (1..n).collect::<Vec<_>>());
+        // One value every 50 ms: 20 a second.
+        let took = rest.last().unwrap().0 - t0;
+        assert_eq!(took, LIST_PERIOD * (n as u32 - 1));
+        // A signed PARAM_VALUE is 50 bytes on the wire (10 header, 25 payload, 2 CRC, 13
+        // signature): 20 a second is a fifth of a 57 600-baud radio at most.
+        let per_second = Duration::from_secs(1).as_secs_f64() / LIST_PERIOD.as_secs_f64();
+        assert!(per_second * 50.0 <= 5760.0 / 5.0, "{per_second} values/s");
+        // A late wake-up does not make the next value go sooner.
+        server.handle(0, &list(0), US, &cfg, &[]);
+        let late = t0 + Duration::from_secs(100);
+        assert_eq!(server.due(late).len(), 1);
+        assert_eq!(server.next_deadline(), Some(late + LIST_PERIOD));
+    }
+
+    #[test]
+    fn a_burst_of_sets_costs_at_most_two_writes_per_parameter_and_the_latest_wins() {
+        let cfg = cfg();
+        let mut server = ParamServer::new(&cfg, Instant::now());
+        let real = MavParamType::MAV_PARAM_TYPE_REAL32;
+        // One change is being written (slowly) when the burst comes.
+        server.handle(0, &set_msg("S1_PWM_TRIM", 1400.0, real), US, &cfg, &[]);
+        let writing = server.poll_set().unwrap();
+        assert!(server.poll_set().is_none(), "one write at a time");
+        for i in 0..1000 {
+            for name in ["S1_PWM_TRIM", "S2_PWM_TRIM"] {
+                let value = 1400.0 + (i % 7) as f32;
+                server.handle(0, &set_msg(name, value, real), US, &cfg, &[]);
+            }
+        }
+        assert_eq!(server.sets_waiting(), 2, "one change waits per parameter");
+        server.set_done(&writing, Ok(()), &cfg, &cfg, &[]);
+        let mut written = Vec::new();
+        while let Some(set) = server.poll_set() {
+            server.set_done(&set, Ok(()), &cfg, &cfg, &[]);
+            written.push((set.name, set.value));
+        }
+        let last = 1400.0 + (999 % 7) as f32;
+        written.sort_by(|a, b| a.0.cmp(&b.0));
         assert_eq!(
-            indexes,
-            (PER_BURST..server.table().len()).collect::<Vec<_>>()
+            written,
+            vec![("S1_PWM_TRIM".into(), last), ("S2_PWM_TRIM".into(), last)]
         );
+    }
+
+    #[test]
+    fn a_retry_during_a_slow_write_is_not_a_second_write() {
+        let cfg = cfg();
+        let mut server = ParamServer::new(&cfg, Instant::now());
+        let real = MavParamType::MAV_PARAM_TYPE_REAL32;
+        let set = set_msg("S1_PWM_TRIM", 1400.0, real);
+        server.handle(0, &set, US, &cfg, &[]);
+        let writing = server.poll_set().unwrap();
+        // The ground station hears nothing yet and asks again: answered once the write is done.
+        assert!(server.handle(0, &set, US, &cfg, &[]).is_empty());
+        assert_eq!(server.sets_waiting(), 0);
+        // Back to the value the file holds now: that is a change from what it will hold.
+        server.handle(0, &set_msg("S1_PWM_TRIM", 1520.0, real), US, &cfg, &[]);
+        assert_eq!(server.sets_waiting(), 1);
+        // And 1400 again: what the file will hold after the write; nothing waits.
+        assert!(server.handle(0, &set, US, &cfg, &[]).is_empty());
+        assert_eq!(server.sets_waiting(), 0);
+        let out = server.set_done(&writing, Ok(()), &cfg, &cfg, &[]);
+        assert!(out.contains(&ParamOut::Value {
+            link: None,
+            index: writing.index
+        }));
+        assert!(server.poll_set().is_none());
     }
 
     #[test]
@@ -412,6 +527,8 @@ mod tests {
             (set.index, set.name.as_str(), set.value),
             (trim, "S1_PWM_TRIM", 1500.0)
         );
+        // The file refuses it (and the next set is compared with the current value again).
+        server.set_done(&set, Err("refused".into()), &cfg, &cfg, &[]);
 
         for (msg, why) in [
             (

@@ -18,6 +18,7 @@ use crate::bus::{
 };
 use crate::config::edit::MappingFile;
 use crate::config::{Config, ExitAction};
+use crate::mavlink::outbox::Queued;
 use crate::mavlink::param_server::ParamSet;
 use crate::mavlink::signing::{self, DropCounts};
 use crate::mavlink::{
@@ -79,6 +80,9 @@ pub struct BridgeView {
     /// Per link (the autopilot's, then the ground station's): outgoing messages dropped
     /// because the link did not keep up (see [`crate::mavlink::outbox`]).
     pub send_drops: Vec<u64>,
+    /// Parameter changes handed to the mapping file's writer since the start (each one
+    /// rewrite of the file, or a refusal by its reader).
+    pub mapping_writes: u64,
 }
 
 /// How many of the latest STATUSTEXTs the view keeps.
@@ -311,30 +315,42 @@ pub fn mapping_file(path: Option<&std::path::Path>) -> Option<MappingFile> {
 
 type EditResult = (ParamSet, Result<Config, String>);
 
+/// The least time between two writes of the mapping file: at most 10 a second, whoever sends
+/// PARAM_SETs and however fast the disk. Changes that come meanwhile wait in the core, one per
+/// parameter, the latest winning (see [`crate::mavlink::param_server`]): a burst of sets costs
+/// about one write per parameter it names and per 100 ms it lasts, and a ground station
+/// loading twenty parameters at once has them all answered within about 2 s.
+pub const MAPPING_WRITE_SPACING: std::time::Duration = std::time::Duration::from_millis(100);
+
 /// Parameter changes are written into the mapping file on a thread of their own: syncing a
 /// file to an SD card can take tens of milliseconds, which the goals must not wait for. The
-/// changes are made one after the other, in the order they came; without a file the sender is
-/// closed and the caller refuses them.
+/// changes are made one after the other, in the order they came; the core hands over one at a
+/// time (see [`crate::mavlink::param_server`]), so one place each way is all the channels
+/// hold. Without a file the sender is closed and the caller refuses them.
 fn spawn_mapping_writer(
     mapping: Option<MappingFile>,
-) -> (
-    mpsc::UnboundedSender<ParamSet>,
-    mpsc::UnboundedReceiver<EditResult>,
-) {
-    let (edit_tx, mut edit_rx) = mpsc::unbounded_channel::<ParamSet>();
-    let (done_tx, done_rx) = mpsc::unbounded_channel::<EditResult>();
+) -> (mpsc::Sender<ParamSet>, mpsc::Receiver<EditResult>) {
+    let (edit_tx, mut edit_rx) = mpsc::channel::<ParamSet>(1);
+    let (done_tx, done_rx) = mpsc::channel::<EditResult>(1);
     match mapping {
         None => edit_rx.close(),
         Some(mut file) => {
             let spawned = std::thread::Builder::new()
                 .name("mapping-writer".into())
                 .spawn(move || {
+                    let mut last_write: Option<Instant> = None;
                     while let Some(set) = edit_rx.blocking_recv() {
+                        if let Some(wait) = last_write.map(|at| {
+                            (at + MAPPING_WRITE_SPACING).saturating_duration_since(Instant::now())
+                        }) {
+                            std::thread::sleep(wait);
+                        }
+                        last_write = Some(Instant::now());
                         let result = file.apply(&set.edits).map_err(|e| {
                             tracing::warn!("parameter {} = {} refused: {e}", set.name, set.value);
                             e.reason()
                         });
-                        if done_tx.send((set, result)).is_err() {
+                        if done_tx.blocking_send((set, result)).is_err() {
                             return;
                         }
                     }
@@ -390,8 +406,9 @@ struct Bridge {
     tasks: Vec<tokio::task::JoinHandle<()>>,
     messages: mpsc::Receiver<(LinkId, MavHeader, MavMessage)>,
     bus_events: mpsc::UnboundedReceiver<(usize, BusEvent)>,
-    edits: mpsc::UnboundedSender<ParamSet>,
-    edited: mpsc::UnboundedReceiver<EditResult>,
+    edits: mpsc::Sender<ParamSet>,
+    edited: mpsc::Receiver<EditResult>,
+    mapping_writes: u64,
     view: Option<watch::Sender<BridgeView>>,
     view_at: Instant,
     texts: std::collections::VecDeque<String>,
@@ -473,6 +490,7 @@ impl Bridge {
             bus_events,
             edits,
             edited,
+            mapping_writes: 0,
             view,
             view_at: Instant::now(),
             texts: std::collections::VecDeque::with_capacity(VIEW_TEXTS),
@@ -533,16 +551,20 @@ impl Bridge {
         }
     }
 
-    /// Parameter changes the core accepted go to the mapping file's writer.
+    /// Parameter changes the core accepted go to the mapping file's writer (one at a time:
+    /// the core gives the next once the last is done).
     fn pass_param_sets(&mut self) {
         while let Some(set) = self.core.poll_param_set() {
-            if let Err(mpsc::error::SendError(set)) = self.edits.send(set) {
-                self.core.param_set_done(
-                    &set,
-                    Err("no mapping file to change".into()),
-                    Instant::now(),
-                );
-            }
+            let why = match self.edits.try_send(set) {
+                Ok(()) => {
+                    self.mapping_writes += 1;
+                    continue;
+                }
+                Err(mpsc::error::TrySendError::Closed(set)) => (set, "no mapping file to change"),
+                Err(mpsc::error::TrySendError::Full(set)) => (set, "the mapping file is busy"),
+            };
+            self.core
+                .param_set_done(&why.0, Err(why.1.into()), Instant::now());
         }
     }
 
@@ -592,17 +614,14 @@ impl Bridge {
                 }
                 self.texts.push_back(text);
             }
-            let header = match out.sender {
-                Some((system, component)) => MavHeader {
-                    system_id: u32::from(system),
-                    component_id: component,
-                    sequence: 0,
-                },
-                None => header,
+            let queued = Queued {
+                header: out.sender.unwrap_or(header),
+                message: out.message,
+                relayed: out.sender.is_some(),
             };
             for (i, writer) in self.writers.iter().enumerate() {
                 if out.link.is_none_or(|l| l == i) {
-                    writer.queue(header, out.message.clone());
+                    writer.queue(queued.clone());
                 }
             }
         }
@@ -633,6 +652,7 @@ impl Bridge {
                 .map(|s| s.lock().drops())
                 .unwrap_or_default(),
             send_drops: self.writers.iter().map(LinkWriter::dropped).collect(),
+            mapping_writes: self.mapping_writes,
         });
     }
 
@@ -798,7 +818,7 @@ mod tests {
     #[test]
     fn the_mapping_writer_makes_changes_in_order_and_refuses_without_a_file() {
         let (tx, _rx) = spawn_mapping_writer(None);
-        assert!(tx.send(trim_set(1500)).is_err(), "no file: refused");
+        assert!(tx.try_send(trim_set(1500)).is_err(), "no file: refused");
 
         let file = MappingFile::in_memory(
             crate::config::SITL_DEFAULT_TOML,
@@ -806,11 +826,10 @@ mod tests {
         )
         .unwrap();
         let (tx, mut rx) = spawn_mapping_writer(Some(file));
-        for value in [1500, 9999, 1510] {
-            tx.send(trim_set(value)).unwrap();
-        }
-        let results: Vec<_> = (0..3)
-            .map(|_| {
+        let results: Vec<_> = [1500, 9999, 1510]
+            .into_iter()
+            .map(|value| {
+                tx.blocking_send(trim_set(value)).unwrap();
                 let (set, result) = rx.blocking_recv().unwrap();
                 (set.value, result.map(|c| c.servos[0].pwm.trim_us))
             })

@@ -1,0 +1,461 @@
+//! Which peers the bridge obeys and answers, over real UDP sockets with real MAVLink frames
+//! (the `mavlink` crate's framing, signed as the bridge signs), simulated servos behind it:
+//!
+//! - A signed frame of the autopilot's outputs, captured on its link and replayed on the
+//!   ground-station link, is dropped there as an old timestamp, counted, and moves nothing.
+//! - With signing on, unsigned (or replayed) datagrams from a second socket do not change where
+//!   a `udpin` link replies: the signed peer keeps hearing the bridge, the stranger hears nothing.
+//! - The bridge's own frames are numbered per link without gaps; the autopilot's HEARTBEAT
+//!   relayed to the ground station keeps the autopilot's sequence numbers.
+//! - A burst of 1 000 PARAM_SETs rewrites the mapping file a bounded number of times, and the
+//!   latest value is the one kept.
+
+mod common;
+
+use common::{Chain, ChainOptions, free_udp_port};
+use lj9da_bridge::mavlink::signing::{Signed, Signing, SigningKey};
+use lj9da_bridge::runtime::MAPPING_WRITE_SPACING;
+use mavlink::dialects::common::{
+    HEARTBEAT_DATA, MavAutopilot, MavMessage, MavParamType, MavType, PARAM_SET_DATA,
+    SERVO_OUTPUT_RAW_DATA,
+};
+use mavlink::{MAVLinkMessageRaw, MAVLinkV2MessageRaw, MavHeader, MavlinkReader, Message};
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio::net::UdpSocket;
+
+const KEY: [u8; 32] = [0x5e; 32];
+const AP: (u8, u8) = (1, 1);
+const BRIDGE: (u8, u8) = (1, 140);
+
+/// A mapping with one servo on channel 1, signed with [`KEY`] when `signed`.
+fn mapping(signed: bool, name: &str) -> String {
+    let signing = if signed {
+        let ts = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!(
+            "peers-{name}-{}.signing-timestamp",
+            std::process::id()
+        ));
+        let _ = std::fs::remove_file(&ts);
+        let hex: String = KEY.iter().map(|b| format!("{b:02x}")).collect();
+        format!(
+            "signing_key = \"{hex}\"\nsigning_timestamp_file = \"{}\"",
+            ts.display()
+        )
+    } else {
+        String::new()
+    };
+    format!(
+        r#"
+[mavlink]
+connection = "udpin:127.0.0.1:14560"
+system_id = 1
+output_rate_hz = 20
+failsafe_timeout_ms = 5000
+{signing}
+
+[telemetry]
+rate_hz = 10
+
+[[bus]]
+name = "wing"
+port = "sim"
+turnaround_ms = 20
+
+[[servo]]
+name = "aileron"
+bus = "wing"
+id = 1
+channel = 1
+"#
+    )
+}
+
+/// A MAVLink peer on a UDP socket of its own: it sends frames (signed with [`KEY`] or not)
+/// and keeps every message it hears.
+struct Peer {
+    socket: Arc<UdpSocket>,
+    signing: Option<Signing>,
+    ids: (u8, u8),
+    sequence: u8,
+    heard: Arc<Mutex<Vec<(MavHeader, MavMessage, bool)>>>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+fn now_stamp() -> u64 {
+    lj9da_bridge::mavlink::signing::now()
+}
+
+impl Peer {
+    async fn new(ids: (u8, u8), signed: bool) -> Peer {
+        let socket = Arc::new(UdpSocket::bind("127.0.0.1:0").await.unwrap());
+        let heard = Arc::new(Mutex::new(Vec::new()));
+        let (s, h) = (socket.clone(), heard.clone());
+        let task = tokio::spawn(async move {
+            let mut buf = vec![0u8; 65_536];
+            while let Ok((n, _)) = s.recv_from(&mut buf).await {
+                let mut reader = MavlinkReader::new(&buf[..n]);
+                while let Ok(raw) = reader.read_any_raw_message::<MavMessage>() {
+                    let signed = matches!(&raw, MAVLinkMessageRaw::V2(f) if f.incompatibility_flags() & 1 != 0);
+                    let header = MavHeader {
+                        system_id: raw.system_id(),
+                        component_id: raw.component_id(),
+                        sequence: raw.sequence(),
+                    };
+                    if let Ok(m) = MavMessage::parse(raw.version(), raw.message_id(), raw.payload())
+                    {
+                        h.lock().unwrap().push((header, m, signed));
+                    }
+                }
+            }
+        });
+        let signing =
+            signed.then(|| Signing::new(SigningKey::from_bytes(KEY), 1, None, now_stamp()).0);
+        Peer {
+            socket,
+            signing,
+            ids,
+            sequence: 0,
+            heard,
+            task,
+        }
+    }
+
+    /// The next frame of `message` from this peer, as bytes on the wire.
+    fn frame(&mut self, message: &MavMessage) -> Vec<u8> {
+        let sequence = self.sequence;
+        self.frame_numbered(message, sequence)
+    }
+
+    fn frame_numbered(&mut self, message: &MavMessage, sequence: u8) -> Vec<u8> {
+        self.sequence = sequence.wrapping_add(1);
+        let header = MavHeader {
+            system_id: u32::from(self.ids.0),
+            component_id: self.ids.1,
+            sequence,
+        };
+        match &mut self.signing {
+            Some(signing) => match signing.sign(0, header, message, now_stamp()) {
+                Signed::Frame(MAVLinkMessageRaw::V2(f), reserve) => {
+                    if let Some(r) = reserve {
+                        signing.reservation_stored(r);
+                    }
+                    f.raw_bytes().to_vec()
+                }
+                _ => panic!("the test peer signs at once"),
+            },
+            None => {
+                let mut f = MAVLinkV2MessageRaw::new();
+                f.serialize_message(header, message);
+                f.raw_bytes().to_vec()
+            }
+        }
+    }
+
+    async fn send_bytes(&self, port: u16, bytes: &[u8]) {
+        self.socket
+            .send_to(bytes, ("127.0.0.1", port))
+            .await
+            .unwrap();
+    }
+
+    async fn send(&mut self, port: u16, message: &MavMessage) {
+        let bytes = self.frame(message);
+        self.send_bytes(port, &bytes).await;
+    }
+
+    fn heard(&self) -> Vec<(MavHeader, MavMessage, bool)> {
+        self.heard.lock().unwrap().clone()
+    }
+
+    /// The bridge's messages heard so far.
+    fn heard_from_bridge(&self) -> Vec<(MavHeader, MavMessage, bool)> {
+        self.heard()
+            .into_iter()
+            .filter(|(h, _, _)| (h.system_id, h.component_id) == (1, BRIDGE.1))
+            .collect()
+    }
+
+    async fn wait_for(&self, what: &str, pred: impl Fn(&[(MavHeader, MavMessage, bool)]) -> bool) {
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while !pred(&self.heard()) {
+            assert!(Instant::now() < deadline, "timed out waiting for {what}");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+}
+
+impl Drop for Peer {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+fn heartbeat() -> MavMessage {
+    MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        mavtype: MavType::MAV_TYPE_FIXED_WING,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+        ..Default::default()
+    })
+}
+
+fn outputs(us: u16) -> MavMessage {
+    MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
+        servo1_raw: us,
+        ..Default::default()
+    })
+}
+
+/// The servo's goal, in mm, as the bus has it.
+fn goal(chain: &Chain) -> Option<f64> {
+    chain.view.borrow().servos.first().and_then(|s| s.goal_mm)
+}
+
+async fn wait_goal(chain: &Chain, mm: f64) {
+    chain
+        .wait_view(
+            &format!("a goal of {mm} mm"),
+            Duration::from_secs(20),
+            |v| {
+                v.servos
+                    .first()
+                    .and_then(|s| s.goal_mm)
+                    .is_some_and(|g| (g - mm).abs() < 0.05)
+            },
+        )
+        .await;
+}
+
+/// 1900 µs with the default PWM range (920/1520/2120 µs ↔ −25/0/+25 mm).
+const MM_1900: f64 = 25.0 * (1900.0 - 1520.0) / 600.0;
+
+/// Sequence numbers, each one more than the last (mod 256): the count of gaps.
+fn gaps(sequences: &[u8]) -> usize {
+    sequences
+        .windows(2)
+        .filter(|w| w[1] != w[0].wrapping_add(1))
+        .count()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_signed_frame_replayed_on_the_ground_station_link_is_dropped_and_moves_nothing() {
+    let gcs_port = free_udp_port();
+    let opts = ChainOptions {
+        gcs_address: Some(format!("udpin:127.0.0.1:{gcs_port}")),
+        ..ChainOptions::default()
+    };
+    let chain = Chain::start_opts(&mapping(true, "replay"), opts).await;
+    let port = chain.autopilot_port;
+    let mut ap = Peer::new(AP, true).await;
+    ap.send(port, &heartbeat()).await;
+    ap.send(port, &outputs(1520)).await;
+    chain
+        .wait_view("the autopilot", Duration::from_secs(20), |v| {
+            v.autopilot == Some(AP)
+        })
+        .await;
+    wait_goal(&chain, 0.0).await;
+    // A frame of the autopilot's on its link, captured there.
+    let captured = ap.frame(&outputs(1900));
+    ap.send_bytes(port, &captured).await;
+    wait_goal(&chain, MM_1900).await;
+    ap.send(port, &outputs(1520)).await;
+    wait_goal(&chain, 0.0).await;
+    // Played again on the ground-station link, within the minute a new stream is given.
+    let attacker = Peer::new((9, 9), false).await;
+    attacker.send_bytes(gcs_port, &captured).await;
+    chain
+        .wait_view("the replay counted", Duration::from_secs(10), |v| {
+            v.signing_drops.get(1).is_some_and(|d| d.old_timestamp == 1)
+        })
+        .await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(goal(&chain).map(|g| (g * 100.0).round()), Some(0.0));
+    assert_eq!(chain.view.borrow().signing_drops[0].total(), 0);
+    chain.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unsigned_datagrams_from_a_stranger_do_not_take_the_signed_peers_replies() {
+    let chain = Chain::start_opts(&mapping(true, "redirect"), ChainOptions::default()).await;
+    let port = chain.autopilot_port;
+    let mut ap = Peer::new(AP, true).await;
+    let first_heartbeat = ap.frame(&heartbeat());
+    ap.send_bytes(port, &first_heartbeat).await;
+    ap.send(port, &outputs(1520)).await;
+    ap.wait_for("the bridge's HEARTBEAT", |h| {
+        h.iter()
+            .any(|(hd, m, _)| hd.component_id == BRIDGE.1 && matches!(m, MavMessage::HEARTBEAT(_)))
+    })
+    .await;
+    // From now on the autopilot says nothing, and a stranger keeps talking: unsigned frames,
+    // and the autopilot's own signed frame replayed from the stranger's address.
+    let before = ap.heard_from_bridge().len();
+    let mut stranger = Peer::new((1, 1), false).await;
+    let until = Instant::now() + Duration::from_millis(2500);
+    let mut sent = 0;
+    while Instant::now() < until {
+        stranger.send(port, &heartbeat()).await;
+        stranger.send(port, &outputs(1900)).await;
+        stranger.send_bytes(port, &first_heartbeat).await;
+        sent += 2;
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let heard = ap.heard_from_bridge();
+    let heartbeats_after = heard[before..]
+        .iter()
+        .filter(|(_, m, _)| matches!(m, MavMessage::HEARTBEAT(_)))
+        .count();
+    assert!(
+        heartbeats_after >= 2,
+        "the signed peer heard {heartbeats_after} HEARTBEATs in 2.5 s of a stranger's datagrams"
+    );
+    assert!(heard.iter().all(|(_, _, signed)| *signed));
+    assert!(
+        stranger.heard().is_empty(),
+        "the stranger heard {:?}",
+        stranger.heard().first()
+    );
+    let drops = chain.view.borrow().signing_drops[0];
+    assert!(drops.unsigned >= sent as u64 - 2, "{drops:?}, {sent} sent");
+    assert!(drops.old_timestamp >= 1, "{drops:?}");
+    assert_eq!(goal(&chain).map(|g| (g * 100.0).round()), Some(0.0));
+    // The bridge's frames to the autopilot are numbered without a gap.
+    let sequences: Vec<u8> = heard.iter().map(|(h, _, _)| h.sequence).collect();
+    assert_eq!(gaps(&sequences), 0, "{sequences:?}");
+    chain.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn own_frames_count_without_gaps_and_the_relayed_heartbeat_keeps_its_numbers() {
+    let chain = Chain::start_opts(&mapping(false, "sequence"), ChainOptions::default()).await;
+    let port = chain.autopilot_port;
+    let mut ap = Peer::new(AP, false).await;
+    let sent: Vec<u8> = (0..15).map(|i| 200u8.wrapping_add(i * 7)).collect();
+    for &sequence in &sent {
+        let hb = ap.frame_numbered(&heartbeat(), sequence);
+        ap.send_bytes(port, &hb).await;
+        ap.send(port, &outputs(1520)).await;
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    chain
+        .gcs
+        .wait_for("relayed HEARTBEATs", Duration::from_secs(10), |h| {
+            h.iter()
+                .filter(|(_, hd, _)| hd.component_id == AP.1)
+                .count()
+                >= 3
+        })
+        .await;
+    let heard = chain.gcs.all();
+    let relayed: Vec<u8> = heard
+        .iter()
+        .filter(|(_, h, _)| (h.system_id, h.component_id) == (1, AP.1))
+        .map(|(_, h, _)| h.sequence)
+        .collect();
+    assert!(
+        relayed.iter().all(|s| sent.contains(s)),
+        "relayed {relayed:?}, the autopilot sent {sent:?}"
+    );
+    let own: Vec<u8> = heard
+        .iter()
+        .filter(|(_, h, _)| (h.system_id, h.component_id) == (1, BRIDGE.1))
+        .map(|(_, h, _)| h.sequence)
+        .collect();
+    assert!(own.len() >= 10, "{own:?}");
+    assert_eq!(gaps(&own), 0, "the bridge's own frames: {own:?}");
+    // On the autopilot's link too.
+    let to_ap: Vec<u8> = ap
+        .heard_from_bridge()
+        .iter()
+        .map(|(h, _, _)| h.sequence)
+        .collect();
+    assert!(to_ap.len() >= 2, "{to_ap:?}");
+    assert_eq!(gaps(&to_ap), 0, "to the autopilot: {to_ap:?}");
+    chain.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_of_a_thousand_param_sets_writes_the_file_a_bounded_number_of_times() {
+    let text = mapping(false, "burst");
+    let file = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("peers-burst-{}.toml", std::process::id()));
+    std::fs::write(&file, &text).unwrap();
+    let opts = ChainOptions {
+        mapping_file: Some(file.clone()),
+        ..ChainOptions::default()
+    };
+    let chain = Chain::start_opts(&text, opts).await;
+    let port = chain.autopilot_port;
+    let mut ap = Peer::new(AP, false).await;
+    ap.send(port, &heartbeat()).await;
+    chain
+        .wait_view("the autopilot", Duration::from_secs(20), |v| {
+            v.autopilot == Some(AP)
+        })
+        .await;
+    let set = |name: &str, value: f32| {
+        MavMessage::PARAM_SET(PARAM_SET_DATA {
+            param_value: value,
+            target_system: 1,
+            target_component: BRIDGE.1,
+            param_id: name.into(),
+            param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
+        })
+    };
+    // 1 000 sets as fast as the socket takes them, two parameters, ever-changing values.
+    let mut gcs = Peer::new((255, 190), false).await;
+    let burst_start = Instant::now();
+    for i in 0..500u16 {
+        let trim = 1500.0 + f32::from(i % 9);
+        gcs.send(port, &set("S1_PWM_TRIM", trim)).await;
+        gcs.send(port, &set("S1_PWM_MAX", 2100.0 + f32::from(i % 9)))
+            .await;
+    }
+    let burst = burst_start.elapsed();
+    // The last values, as a ground station that heard no answer sends them again.
+    let (trim, max) = (
+        1500.0 + f32::from(499u16 % 9),
+        2100.0 + f32::from(499u16 % 9),
+    );
+    for _ in 0..5 {
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        gcs.send(port, &set("S1_PWM_TRIM", trim)).await;
+        gcs.send(port, &set("S1_PWM_MAX", max)).await;
+    }
+    let holds = |text: &str| {
+        text.contains(&format!("pwm_trim_us = {trim}"))
+            && text.contains(&format!("pwm_max_us = {max}"))
+    };
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !holds(&std::fs::read_to_string(&file).unwrap()) {
+        assert!(
+            Instant::now() < deadline,
+            "the file never held the last values: {}",
+            std::fs::read_to_string(&file).unwrap()
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    // One write under way when the burst starts, then at most one per parameter and per
+    // write spacing the burst lasts, and one per parameter for what waits at its end.
+    let writes = chain.view.borrow().mapping_writes;
+    let spacings = (burst.as_secs_f64() / MAPPING_WRITE_SPACING.as_secs_f64()).ceil() as u64;
+    let bound = 1 + 2 * spacings + 2;
+    assert!(
+        (2..=bound).contains(&writes),
+        "{writes} writes of the mapping file for 1 000 sets on two parameters in {burst:?} (at most {bound})"
+    );
+    eprintln!("{writes} writes for 1 000 sets in {burst:?}");
+    assert!(holds(&std::fs::read_to_string(&file).unwrap()));
+    // The ground station was answered with the values kept.
+    gcs.wait_for("PARAM_VALUE of the trim kept", |h| {
+        h.iter().any(|(_, m, _)| {
+            matches!(m, MavMessage::PARAM_VALUE(v) if v.param_value == trim
+                && v.param_id.to_str().unwrap_or("") == "S1_PWM_TRIM")
+        })
+    })
+    .await;
+    chain.stop().await;
+    let _ = std::fs::remove_file(file);
+}
