@@ -263,7 +263,7 @@ pub struct Thresholds {
     pub baseline_flights: usize,
     pub rise_limit: f64,
     pub holding_min_rise_a: f64,
-    pub heating_min_rise_c_per_min: f64,
+    pub heating_min_extra_c: f64,
     pub margin_min_drop_c: f64,
     pub alarm_c: f64,
 }
@@ -274,7 +274,7 @@ impl Default for Thresholds {
             baseline_flights: BASELINE_FLIGHTS,
             rise_limit: RISE_LIMIT,
             holding_min_rise_a: HOLDING_MIN_RISE_A,
-            heating_min_rise_c_per_min: HEATING_MIN_EXTRA_C,
+            heating_min_extra_c: HEATING_MIN_EXTRA_C,
             margin_min_drop_c: MARGIN_MIN_DROP_C,
             alarm_c: ALARM_C,
         }
