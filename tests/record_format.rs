@@ -77,6 +77,16 @@ fn every_kind() -> Vec<Record> {
             position: MmCenti(i16::MAX),
             flags: ReplyFlags(0),
         },
+        RecordBody::Replies {
+            servo: 0,
+            answered: 123_456,
+            missed: 7,
+        },
+        RecordBody::Replies {
+            servo: 2,
+            answered: u32::MAX,
+            missed: 0,
+        },
     ];
     for (i, health) in [
         Health::Starting,
@@ -155,7 +165,7 @@ fn every_record_kind_round_trips_through_the_recorder_and_the_reader() {
     assert!(rec.closed);
     assert!(rec.notes.is_empty(), "{:?}", rec.notes);
     assert_eq!(rec.header.servos, servos());
-    assert_eq!(rec.header.version, (1, 1));
+    assert_eq!(rec.header.version, (1, 2));
     assert_eq!(rec.header.part, 0);
     assert!(rec.header.software.starts_with("lj9da-bridge "));
     let (last, data) = rec.records.split_last().unwrap();
@@ -325,6 +335,7 @@ fn only_an_unreadable_header_is_an_error() {
 
     let (mut bytes, _) = file_bytes(&every_kind());
     bytes[8] = 2; // major version 2
+    bytes[10] = 1; // minor version 1
     std::fs::write(&path, &bytes).unwrap();
     let e = read_record(&path).unwrap_err().to_string();
     assert!(e.contains("record format 2.1"), "{e}");
@@ -336,6 +347,36 @@ fn only_an_unreadable_header_is_an_error() {
 
     let e = read_record(&dir.path().join("missing.lj9rec")).unwrap_err();
     assert!(matches!(e, RecordError::Io { .. }));
+}
+
+#[test]
+fn files_of_formats_1_0_and_1_1_still_read() {
+    // The kinds each older version had: 1.0 no position or replies records, 1.1 no replies.
+    let older: Vec<Record> = every_kind()
+        .into_iter()
+        .filter(|r| !matches!(r.body, RecordBody::Replies { .. }))
+        .collect();
+    for (minor, records) in [
+        (
+            0u16,
+            older
+                .iter()
+                .filter(|r| !matches!(r.body, RecordBody::Position { .. }))
+                .cloned()
+                .collect::<Vec<_>>(),
+        ),
+        (1, older.clone()),
+    ] {
+        let mut header = RecordHeader::new(1_763_769_599_000_000_000, servos());
+        header.version = (1, minor);
+        let mut bytes = encode_header(&header);
+        for r in &records {
+            encode_record(r, &mut bytes);
+        }
+        let rec = Recording::from_bytes(&bytes).unwrap();
+        assert_eq!(rec.header.version, (1, minor));
+        assert_eq!(rec.records, records, "format 1.{minor}");
+    }
 }
 
 #[test]

@@ -457,3 +457,69 @@ fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
         "{times:?} vs {telemetry_t}"
     );
 }
+
+#[test]
+fn reply_counts_are_recorded_when_they_change_at_most_once_a_second() {
+    use lj9da_bridge::bus::{BusCounters, BusStatus, ForceState, Health, ServoStatus};
+    use lj9da_bridge::protocol::ServoId;
+    use lj9da_bridge::record::StatusFeed;
+
+    let dir = TempDir::new("replies");
+    let handle = Recorder::start(dir.path(), &servos(), RecordLimits::default()).unwrap();
+    let mut feed = StatusFeed::new(handle.clone(), &servos());
+    let t0 = handle.start_instant();
+    let status = |ms: u64, answered: u64, timeouts: u64| BusStatus {
+        name: "wing".into(),
+        port_open: true,
+        servos: vec![ServoStatus {
+            id: ServoId::new(1).unwrap(),
+            name: "left".into(),
+            health: Health::Online,
+            telemetry: None,
+            telemetry_at: None,
+            position_at: None,
+            age: None,
+            flags: ReplyFlags(0),
+            goal: None,
+            force: ForceState::On,
+            stalled: false,
+            identity: Default::default(),
+            consecutive_timeouts: 0,
+            telemetry_count: 0,
+            answered,
+            timeouts,
+            degraded: None,
+        }],
+        counters: BusCounters::default(),
+        at: t0 + Duration::from_millis(ms),
+    };
+    // Nothing asked yet: no record. Then the first counts; changes within a second wait; the
+    // same counts a second later are not written again.
+    for (ms, answered, timeouts) in [
+        (0, 0, 0),
+        (100, 5, 1),
+        (600, 50, 1),
+        (1_100, 90, 2),
+        (1_200, 95, 2),
+        (3_000, 95, 2),
+        (4_000, 95, 2),
+    ] {
+        feed.observe(&status(ms, answered, timeouts));
+    }
+    let path = handle.path().unwrap();
+    handle.finish();
+    let rec = read_record(&path).unwrap();
+    let replies: Vec<(u64, u32, u32)> = rec
+        .records
+        .iter()
+        .filter_map(|r| match r.body {
+            RecordBody::Replies {
+                servo: 0,
+                answered,
+                missed,
+            } => Some((r.t_us / 1000, answered, missed)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(replies, [(100, 5, 1), (1_100, 90, 2), (3_000, 95, 2)]);
+}

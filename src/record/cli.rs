@@ -9,6 +9,8 @@ use super::page::write_page;
 use super::plot::plot;
 use super::reader::{Recording, read_record};
 use super::summary::summary;
+use super::trend::{Since, record_files, trend};
+use super::trend_html::write_trend_page;
 use clap::Subcommand;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -31,6 +33,26 @@ pub enum RecordCommand {
         /// The folder to write the pictures into (created if missing).
         #[arg(long)]
         out: PathBuf,
+    },
+    /// Each servo's wear across flights: per flight its time with force on, travel,
+    /// reversals, time in motion, friction (current per speed), holding and peak current, time
+    /// stalled, temperatures, heating, bad replies and alarms; a verdict ("inspect" when a
+    /// figure rose beyond its threshold over the servo's first flights).
+    Trend {
+        /// Record files, or folders of them (their `*.lj9rec` files).
+        #[arg(required = true)]
+        paths: Vec<PathBuf>,
+        /// Print JSON (the same figures and verdicts) for a fleet tool.
+        #[arg(long)]
+        json: bool,
+        /// Start a new baseline on this date (UTC, `2026-11-21` or `2026-11-21T08:30`): flights
+        /// before it are left out. `SERVO=DATE` for one servo (after it was replaced); may be
+        /// given more than once.
+        #[arg(long, value_name = "[SERVO=]DATE")]
+        since: Vec<Since>,
+        /// Also write a page with each figure against the flight date.
+        #[arg(long, value_name = "FILE")]
+        html: Option<PathBuf>,
     },
     /// Export every record as CSV (one row per record) for a spreadsheet.
     Csv {
@@ -95,6 +117,12 @@ pub fn run(cmd: RecordCommand) -> ExitCode {
                 }
             }
         }
+        RecordCommand::Trend {
+            paths,
+            json,
+            since,
+            html,
+        } => run_trend(&paths, json, &since, html.as_deref()),
         RecordCommand::Csv { file, out } => {
             let rec = match load(&file) {
                 Ok(rec) => rec,
@@ -120,4 +148,57 @@ pub fn run(cmd: RecordCommand) -> ExitCode {
             }
         }
     }
+}
+
+fn run_trend(paths: &[PathBuf], json: bool, since: &[Since], html: Option<&Path>) -> ExitCode {
+    let files = match record_files(paths) {
+        Ok(files) => files,
+        Err(e) => {
+            eprintln!("error: cannot list the record files: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    if files.is_empty() {
+        eprintln!("error: no record files (*.lj9rec) in what was given");
+        return ExitCode::FAILURE;
+    }
+    let (found, notes) = trend(&files, since);
+    for note in &notes.notes {
+        eprintln!("note: {note}");
+    }
+    for error in &notes.errors {
+        eprintln!("error: {error} (left out)");
+    }
+    if notes.errors.len() == files.len() {
+        return ExitCode::FAILURE;
+    }
+    let text = if json {
+        match serde_json::to_string_pretty(&found) {
+            Ok(text) => text + "\n",
+            Err(e) => {
+                eprintln!("error: {e}");
+                return ExitCode::FAILURE;
+            }
+        }
+    } else {
+        found.to_string()
+    };
+    let stdout = std::io::stdout();
+    let mut lock = stdout.lock();
+    match lock.write_all(text.as_bytes()).and_then(|()| lock.flush()) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {}
+        Err(e) => {
+            eprintln!("error: cannot write to stdout: {e}");
+            return ExitCode::FAILURE;
+        }
+    }
+    if let Some(page) = html {
+        if let Err(e) = write_trend_page(&found, page) {
+            eprintln!("error: cannot write {}: {e}", page.display());
+            return ExitCode::FAILURE;
+        }
+        eprintln!("wrote {}", page.display());
+    }
+    ExitCode::SUCCESS
 }

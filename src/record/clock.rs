@@ -45,6 +45,68 @@ impl Utc {
     }
 }
 
+impl Utc {
+    /// `2026-11-21`.
+    pub fn date(&self) -> String {
+        let t = self.0;
+        format!("{:04}-{:02}-{:02}", t.year(), u8::from(t.month()), t.day())
+    }
+
+    /// `2026-11-21 23:59`.
+    pub fn minute(&self) -> String {
+        let t = self.0;
+        format!("{} {:02}:{:02}", self.date(), t.hour(), t.minute())
+    }
+
+    /// `2026-11-21T23:59:59Z` (ISO 8601, whole seconds).
+    pub fn iso(&self) -> String {
+        let t = self.0;
+        format!(
+            "{}T{:02}:{:02}:{:02}Z",
+            self.date(),
+            t.hour(),
+            t.minute(),
+            t.second()
+        )
+    }
+
+    /// Parse `YYYY-MM-DD`, `YYYY-MM-DDTHH:MM`, `YYYY-MM-DDTHH:MM:SS` (a space for the `T`,
+    /// and a trailing `Z`, are accepted) as UTC: ns since 1970-01-01.
+    pub fn parse_unix_ns(text: &str) -> Option<i64> {
+        let text = text.trim().trim_end_matches(['Z', 'z']);
+        let (date, time) = match text.split_once(['T', 't', ' ']) {
+            Some((d, t)) => (d, Some(t)),
+            None => (text, None),
+        };
+        let mut d = date.split('-');
+        let year: i32 = d.next()?.parse().ok()?;
+        let month: u8 = d.next()?.parse().ok()?;
+        let day: u8 = d.next()?.parse().ok()?;
+        if d.next().is_some() {
+            return None;
+        }
+        let (mut hour, mut minute, mut second) = (0u8, 0u8, 0u8);
+        if let Some(time) = time {
+            let mut t = time.split(':');
+            hour = t.next()?.parse().ok()?;
+            minute = t.next()?.parse().ok()?;
+            if let Some(s) = t.next() {
+                second = s.parse().ok()?;
+            }
+            if t.next().is_some() {
+                return None;
+            }
+        }
+        let date =
+            time::Date::from_calendar_date(year, time::Month::try_from(month).ok()?, day).ok()?;
+        let time = time::Time::from_hms(hour, minute, second).ok()?;
+        let ns = time::PrimitiveDateTime::new(date, time)
+            .assume_utc()
+            .unix_timestamp_nanos();
+        i64::try_from(ns).ok()
+    }
+}
+
 impl std::fmt::Display for Utc {
     /// `2026-11-21 23:59:59.123 UTC`.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -76,6 +138,32 @@ mod tests {
         assert_eq!(date(-1), "19691231T000000Z");
         assert_eq!(date(11_016), "20000229T000000Z");
         assert_eq!(date(20_413), "20251121T000000Z");
+    }
+
+    #[test]
+    fn dates_parse_as_utc_and_print_back() {
+        let ns = Utc::parse_unix_ns("2026-11-21T23:59:59Z").unwrap();
+        assert_eq!(Utc::from_unix_ns(ns).iso(), "2026-11-21T23:59:59Z");
+        assert_eq!(Utc::from_unix_ns(ns).minute(), "2026-11-21 23:59");
+        let day = Utc::parse_unix_ns("2026-11-21").unwrap();
+        assert_eq!(
+            Utc::from_unix_ns(day).to_string(),
+            "2026-11-21 00:00:00.000 UTC"
+        );
+        assert_eq!(
+            Utc::parse_unix_ns("2026-11-21 08:30"),
+            Some(day + 510 * 60 * 1_000_000_000)
+        );
+        for bad in [
+            "",
+            "2026-13-01",
+            "2026-02-30",
+            "2026-1",
+            "21.11.2026",
+            "2026-11-21T25:00",
+        ] {
+            assert_eq!(Utc::parse_unix_ns(bad), None, "{bad}");
+        }
     }
 
     #[test]

@@ -63,6 +63,9 @@ pub fn csv_fields(rec: &Recording, record: &Record) -> [String; CSV_COLUMNS] {
             cols[2] = format!("{:.2}", position.mm());
             cols[7] = flags.meaningful().to_string();
         }
+        RecordBody::Replies {
+            answered, missed, ..
+        } => cols[11] = format!("replies: {answered} good, {missed} garbled or missing"),
         RecordBody::Health {
             health, stalled, ..
         } => {

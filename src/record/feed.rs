@@ -10,7 +10,8 @@
 //! ([`BusHandle::watch_status`](crate::bus::BusHandle::watch_status)), which keeps only the
 //! newest status, a sample replaced before the feed looked is not recorded;
 //! [`StatusFeed::missed_samples`] counts those (from the servo's telemetry counter), so the
-//! loss is known, not silent.
+//! loss is known, not silent. Each servo's reply counts (good, and garbled or missing) are
+//! recorded when they changed, at most once per [`REPLIES_EVERY`].
 //!
 //! ```no_run
 //! # fn feed(cfg: lj9da_bridge::bus::BusConfig, port: std::path::PathBuf,
@@ -26,7 +27,10 @@
 use super::format::{RecordServo, severity};
 use super::writer::RecordHandle;
 use crate::bus::{BusEvent, BusStatus, Health};
-use std::time::Instant;
+use std::time::{Duration, Instant};
+
+/// The shortest time between two replies records of a servo.
+pub const REPLIES_EVERY: Duration = Duration::from_secs(1);
 
 #[derive(Debug, Clone, Default)]
 struct Seen {
@@ -34,6 +38,8 @@ struct Seen {
     telemetry_count: Option<u64>,
     position_at: Option<Instant>,
     state: Option<(Health, bool)>,
+    /// When the latest replies record was written, and its counts.
+    replies: Option<(Instant, u64, u64)>,
 }
 
 /// Turns bus statuses and events into records.
@@ -91,6 +97,18 @@ impl StatusFeed {
                 self.handle
                     .position(at, index, telemetry.present_position, servo.flags);
                 seen.position_at = Some(at);
+            }
+            let counts = (servo.answered, servo.timeouts);
+            let due = match seen.replies {
+                None => counts != (0, 0),
+                Some((at, answered, missed)) => {
+                    (answered, missed) != counts
+                        && status.at.saturating_duration_since(at) >= REPLIES_EVERY
+                }
+            };
+            if due {
+                self.handle.replies(status.at, index, counts.0, counts.1);
+                seen.replies = Some((status.at, counts.0, counts.1));
             }
             let state = (servo.health, servo.stalled);
             if seen.state != Some(state) {

@@ -1,4 +1,4 @@
-//! The flight record file format, version 1.0: pure encoding and decoding, no I/O.
+//! The flight record file format, version 1.2: pure encoding and decoding, no I/O.
 //!
 //! A record file (`*.lj9rec`) is a header followed by records, all integers little-endian.
 //! Every part of the file is checked by a CRC-32 ([`super::crc32`]: IEEE, as zlib), so that
@@ -11,7 +11,7 @@
 //! |---|---|---|
 //! | 0 | 8 | magic: the ASCII bytes `LJ9DAREC` |
 //! | 8 | 2 | format major version, `u16` (1). A reader refuses a major version it does not know |
-//! | 10 | 2 | format minor version, `u16` (0). Minor versions only add: a reader of 1.0 reads 1.x |
+//! | 10 | 2 | format minor version, `u16` (2; 1.0 and 1.1 files are still read). Minor versions only add: a reader of 1.0 reads 1.x |
 //! | 12 | 4 | `body_len`, `u32`: the bytes of the header body that follows (at most 1 MiB) |
 //! | 16 | `body_len` | the header body, below |
 //! | 16 + `body_len` | 4 | CRC-32 of bytes 0 … 16 + `body_len` − 1 |
@@ -50,12 +50,16 @@
 //! | 5 | dropped | `count` `u64`: records the writer could not take since the previous `dropped` record (its queue was full, or the disk failed) |
 //! | 6 | end | `next` `u8`: 0 the run ended here cleanly, 1 the run continues in the next part |
 //! | 7 | position (1.1) | `servo` `u8` · `flags` `u8` (as in telemetry) · `present_position` `i16` 0.01 mm — 4 bytes |
+//! | 8 | replies (1.2) | `servo` `u8` · `answered` `u32` · `missed` `u32`: the servo's requests since its bus started that got a good reply, and that got a garbled reply or none (both saturate at `u32::MAX`) — 9 bytes |
 //!
 //! A goal is what the bridge handed to the bus (one record per change); a telemetry record is
 //! one reply of registers 42–59, stamped with the time it arrived; a position record is one
 //! reply of registers 42–43 alone (the bus master reads the position by itself in bus time too
 //! short for a full poll); a health record is written
-//! when a servo's health or its stall state changes; an event is a STATUSTEXT or bus event.
+//! when a servo's health or its stall state changes; an event is a STATUSTEXT or bus event; a
+//! replies record is written at most once a second per servo while its counts change (the
+//! share of bad replies over a flight is the last one's `missed` over its sum: a wiring figure
+//! for `record trend`).
 //!
 //! A telemetry record takes 22–24 bytes (24 from 4.5 min to 9.5 h into a run).
 //!
@@ -77,7 +81,7 @@ pub const MAGIC: [u8; 8] = *b"LJ9DAREC";
 /// The format's major version: a reader refuses any other.
 pub const VERSION_MAJOR: u16 = 1;
 /// The format's minor version (additions only).
-pub const VERSION_MINOR: u16 = 1;
+pub const VERSION_MINOR: u16 = 2;
 /// The extension of record files (rotation only ever deletes files with it).
 pub const FILE_EXTENSION: &str = "lj9rec";
 /// The largest `len` a record may have.
@@ -106,8 +110,10 @@ pub mod kind {
     pub const END: u8 = 6;
     /// Since format 1.1.
     pub const POSITION: u8 = 7;
+    /// Since format 1.2.
+    pub const REPLIES: u8 = 8;
     /// Every kind this version reads (they are numbered without gaps).
-    pub const KNOWN: std::ops::RangeInclusive<u8> = GOAL..=POSITION;
+    pub const KNOWN: std::ops::RangeInclusive<u8> = GOAL..=REPLIES;
 }
 
 /// Payload bytes of each fixed-size kind (a longer payload is a later minor version's).
@@ -118,6 +124,7 @@ const EVENT_MIN_LEN: usize = 2;
 const DROPPED_LEN: usize = 8;
 const END_LEN: usize = 1;
 const POSITION_LEN: usize = 4;
+const REPLIES_LEN: usize = 9;
 
 /// One servo of the header's servo table.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -222,6 +229,13 @@ pub enum RecordBody {
         position: MmCenti,
         flags: ReplyFlags,
     },
+    /// The servo's reply counts since its bus started: good replies, and garbled or missing
+    /// ones (since format 1.2).
+    Replies {
+        servo: u8,
+        answered: u32,
+        missed: u32,
+    },
     /// The servo's health or stall state changed.
     Health {
         servo: u8,
@@ -247,6 +261,7 @@ impl RecordBody {
             RecordBody::Goal { servo, .. }
             | RecordBody::Telemetry { servo, .. }
             | RecordBody::Position { servo, .. }
+            | RecordBody::Replies { servo, .. }
             | RecordBody::Health { servo, .. } => Some(*servo),
             RecordBody::Event { servo, .. } => *servo,
             RecordBody::Dropped { .. } | RecordBody::End { .. } => None,
@@ -259,6 +274,7 @@ impl RecordBody {
             RecordBody::Goal { .. } => "goal",
             RecordBody::Telemetry { .. } => "telemetry",
             RecordBody::Position { .. } => "position",
+            RecordBody::Replies { .. } => "replies",
             RecordBody::Health { .. } => "health",
             RecordBody::Event { .. } => "event",
             RecordBody::Dropped { .. } => "dropped",
@@ -397,6 +413,7 @@ pub fn encode_record(record: &Record, out: &mut Vec<u8>) -> usize {
         RecordBody::Goal { .. } => kind::GOAL,
         RecordBody::Telemetry { .. } => kind::TELEMETRY,
         RecordBody::Position { .. } => kind::POSITION,
+        RecordBody::Replies { .. } => kind::REPLIES,
         RecordBody::Health { .. } => kind::HEALTH,
         RecordBody::Event { .. } => kind::EVENT,
         RecordBody::Dropped { .. } => kind::DROPPED,
@@ -437,6 +454,15 @@ pub fn encode_record(record: &Record, out: &mut Vec<u8>) -> usize {
             out.push(*servo);
             out.push(flags.0);
             out.extend_from_slice(&position.0.to_le_bytes());
+        }
+        RecordBody::Replies {
+            servo,
+            answered,
+            missed,
+        } => {
+            out.push(*servo);
+            out.extend_from_slice(&answered.to_le_bytes());
+            out.extend_from_slice(&missed.to_le_bytes());
         }
         RecordBody::Health {
             servo,
@@ -725,6 +751,7 @@ fn decode_body(kind: u8, payload: &[u8]) -> Body {
         kind::DROPPED => ("dropped", DROPPED_LEN),
         kind::END => ("end", END_LEN),
         kind::POSITION => ("position", POSITION_LEN),
+        kind::REPLIES => ("replies", REPLIES_LEN),
         other => return Body::Unsupported(format!("records of kind {other}")),
     };
     let mut c = Cursor::new(payload);
@@ -768,6 +795,16 @@ fn decode_body(kind: u8, payload: &[u8]) -> Body {
                 servo,
                 position,
                 flags,
+            }))
+        })(),
+        kind::REPLIES => (|| {
+            let servo = c.u8()?;
+            let answered = c.u32()?;
+            let missed = c.u32()?;
+            Some(Ok(RecordBody::Replies {
+                servo,
+                answered,
+                missed,
             }))
         })(),
         kind::HEALTH => (|| {
@@ -907,10 +944,12 @@ mod tests {
             Err(HeaderError::Truncated { len: 20, .. })
         ));
         bytes[8] = 2;
+        bytes[10] = 1;
         let e = decode_header(&bytes).unwrap_err();
         assert_eq!(e, HeaderError::UnsupportedVersion { major: 2, minor: 1 });
         assert!(e.to_string().contains("format 2.1"));
         bytes[8] = 1;
+        bytes[10] = VERSION_MINOR as u8;
         bytes[20] ^= 1;
         assert!(matches!(
             decode_header(&bytes),

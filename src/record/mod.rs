@@ -16,6 +16,7 @@
 //! - [`reader`]: [`read_record`], a file back into a [`Recording`], with notes on damage;
 //! - [`summary`](mod@summary), [`csv`], [`plot`], [`page`]: what `lj9da-bridge record summary|csv|plot`
 //!   show;
+//! - [`trend`](mod@trend): each servo's wear across flights, what `lj9da-bridge record trend` shows;
 //! - [`cli`]: [`RecordCommand`] and [`cli::run`], the `record` subcommand;
 //! - `crc` and `clock`: CRC-32 and UTC dates (through `crc32fast` and `time`).
 //!
@@ -48,6 +49,8 @@ pub mod plot;
 pub mod reader;
 pub mod rotate;
 pub mod summary;
+pub mod trend;
+pub mod trend_html;
 pub mod writer;
 
 pub use cli::RecordCommand;
@@ -55,7 +58,7 @@ pub use clock::{Utc, unix_ns_now};
 pub use crc::crc32;
 pub use feed::StatusFeed;
 pub use format::{Record, RecordBody, RecordHeader, RecordServo};
-pub use reader::{RecordError, Recording, read_record};
+pub use reader::{RecordError, Recording, Scan, read_record, scan_bytes, scan_record};
 pub use summary::{ServoSummary, Summary, summary};
 pub use writer::{RecordHandle, RecordLimits, RecordStats, Recorder, RecorderOptions};
 

@@ -14,7 +14,7 @@ use std::io;
 use std::path::{Path, PathBuf};
 
 /// Wheel zoom, drag pan and double-click reset of every `svg[data-zoom]`, through its viewBox.
-const ZOOM_SCRIPT: &str = r#"
+pub(crate) const ZOOM_SCRIPT: &str = r#"
 for (const svg of document.querySelectorAll('svg[data-zoom]')) {
   const whole = svg.getAttribute('viewBox').split(' ').map(Number);
   let box = whole.slice();

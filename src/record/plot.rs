@@ -58,7 +58,7 @@ struct Panel {
 }
 
 /// Text for XML.
-fn escape(s: &str) -> String {
+pub(crate) fn escape(s: &str) -> String {
     let mut out = String::with_capacity(s.len());
     for c in s.chars() {
         match c {
@@ -75,7 +75,7 @@ fn escape(s: &str) -> String {
 }
 
 /// A tick spacing of 1, 2 or 5 × 10ⁿ giving about `target` ticks over `span`.
-fn nice_step(span: f64, target: f64) -> f64 {
+pub(crate) fn nice_step(span: f64, target: f64) -> f64 {
     let raw = span / target;
     if !raw.is_finite() || raw <= 0.0 {
         return 1.0;
@@ -94,7 +94,7 @@ fn nice_step(span: f64, target: f64) -> f64 {
     nice * magnitude
 }
 
-fn ticks(lo: f64, hi: f64, target: f64) -> Vec<f64> {
+pub(crate) fn ticks(lo: f64, hi: f64, target: f64) -> Vec<f64> {
     let step = nice_step(hi - lo, target);
     let mut v = (lo / step).ceil() * step;
     let mut out = Vec::new();
@@ -105,7 +105,7 @@ fn ticks(lo: f64, hi: f64, target: f64) -> Vec<f64> {
     out
 }
 
-fn tick_label(v: f64, step: f64) -> String {
+pub(crate) fn tick_label(v: f64, step: f64) -> String {
     let decimals = if step >= 1.0 {
         0
     } else {

@@ -61,88 +61,133 @@ pub fn read_record(path: &Path) -> Result<Recording, RecordError> {
     })
 }
 
+/// What reading a file's bytes found besides its records (see [`scan_bytes`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scan {
+    pub header: RecordHeader,
+    /// What was skipped or missing, one sentence each (empty for a file closed cleanly).
+    pub notes: Vec<String>,
+    /// Whether the file ends with the writer's end record.
+    pub closed: bool,
+    /// Whole records handed on.
+    pub records: usize,
+}
+
+/// Read the record file at `path` without keeping its records: each is handed to `on_record`
+/// in file order, as [`read_record`] would have kept it (for reading many files quickly).
+pub fn scan_record(path: &Path, on_record: impl FnMut(Record)) -> Result<Scan, RecordError> {
+    let bytes = std::fs::read(path).map_err(|source| RecordError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    scan_bytes(&bytes, on_record).map_err(|reason| RecordError::Header {
+        path: path.to_path_buf(),
+        reason,
+    })
+}
+
+/// Read a record file's bytes, handing each whole record to `on_record` in file order; the
+/// notes and the end are those [`Recording::from_bytes`] gives.
+pub fn scan_bytes(bytes: &[u8], mut on_record: impl FnMut(Record)) -> Result<Scan, HeaderError> {
+    let (header, header_len) = decode_header(bytes)?;
+    let mut notes = Vec::new();
+    let mut unsupported: BTreeMap<String, u64> = BTreeMap::new();
+    let mut count = 0usize;
+    let mut outside = 0usize;
+    // The last record's end mark: `Some(continued)` if it is an end record.
+    let mut last_end: Option<bool> = None;
+    let mut pos = header_len;
+    while let Some(rest) = bytes.get(pos..).filter(|r| !r.is_empty()) {
+        match decode_record(rest) {
+            Decoded::Record { record, len } => {
+                if record
+                    .body
+                    .servo()
+                    .is_some_and(|s| usize::from(s) >= header.servos.len())
+                {
+                    outside += 1;
+                }
+                last_end = match record.body {
+                    RecordBody::End { continued } => Some(continued),
+                    _ => None,
+                };
+                count += 1;
+                on_record(record);
+                pos += len;
+            }
+            Decoded::Unsupported { what, len } => {
+                *unsupported.entry(what).or_default() += 1;
+                pos += len;
+            }
+            failure => match resync(bytes, pos + 1) {
+                Some(next) => {
+                    let why = match failure {
+                        Decoded::Invalid { why } => why,
+                        _ => "a record that overlaps the next one".to_string(),
+                    };
+                    notes.push(format!(
+                        "bytes {pos} to {} ({} bytes) are not a record ({why}): skipped, \
+                         reading resumed at offset {next}",
+                        next - 1,
+                        next - pos
+                    ));
+                    pos = next;
+                }
+                None => {
+                    notes.push(tail_note(pos, rest, &failure, count));
+                    break;
+                }
+            },
+        }
+    }
+    for (what, count) in unsupported {
+        notes.push(format!(
+            "skipped {count} {what}, unknown to this lj9da-bridge (written by a newer one?)"
+        ));
+    }
+    if outside > 0 {
+        notes.push(format!(
+            "{outside} records name a servo index beyond the header's {} servos: they are \
+             shown without a servo",
+            header.servos.len()
+        ));
+    }
+    let closed = match last_end {
+        Some(false) => true,
+        Some(true) => {
+            notes.push(format!(
+                "the run continues in the next record file (part {})",
+                u32::from(header.part) + 1
+            ));
+            true
+        }
+        None => {
+            notes.push(
+                "the file has no end record: the bridge stopped without closing it (crash, \
+                 kill or power loss); up to the last second before the stop may be missing"
+                    .to_string(),
+            );
+            false
+        }
+    };
+    Ok(Scan {
+        header,
+        notes,
+        closed,
+        records: count,
+    })
+}
+
 impl Recording {
     /// Read a record file's bytes.
     pub fn from_bytes(bytes: &[u8]) -> Result<Recording, HeaderError> {
-        let (header, header_len) = decode_header(bytes)?;
         let mut records = Vec::with_capacity((bytes.len() / 24).min(1 << 20));
-        let mut notes = Vec::new();
-        let mut unsupported: BTreeMap<String, u64> = BTreeMap::new();
-        let mut pos = header_len;
-        while let Some(rest) = bytes.get(pos..).filter(|r| !r.is_empty()) {
-            match decode_record(rest) {
-                Decoded::Record { record, len } => {
-                    records.push(record);
-                    pos += len;
-                }
-                Decoded::Unsupported { what, len } => {
-                    *unsupported.entry(what).or_default() += 1;
-                    pos += len;
-                }
-                failure => match resync(bytes, pos + 1) {
-                    Some(next) => {
-                        let why = match failure {
-                            Decoded::Invalid { why } => why,
-                            _ => "a record that overlaps the next one".to_string(),
-                        };
-                        notes.push(format!(
-                            "bytes {pos} to {} ({} bytes) are not a record ({why}): skipped, \
-                             reading resumed at offset {next}",
-                            next - 1,
-                            next - pos
-                        ));
-                        pos = next;
-                    }
-                    None => {
-                        notes.push(tail_note(pos, rest, &failure, records.len()));
-                        break;
-                    }
-                },
-            }
-        }
-        for (what, count) in unsupported {
-            notes.push(format!(
-                "skipped {count} {what}, unknown to this lj9da-bridge (written by a newer one?)"
-            ));
-        }
-        let outside = records
-            .iter()
-            .filter(|r| {
-                r.body
-                    .servo()
-                    .is_some_and(|s| usize::from(s) >= header.servos.len())
-            })
-            .count();
-        if outside > 0 {
-            notes.push(format!(
-                "{outside} records name a servo index beyond the header's {} servos: they are \
-                 shown without a servo",
-                header.servos.len()
-            ));
-        }
-        let closed = match records.last().map(|r| &r.body) {
-            Some(RecordBody::End { continued: false }) => true,
-            Some(RecordBody::End { continued: true }) => {
-                notes.push(format!(
-                    "the run continues in the next record file (part {})",
-                    u32::from(header.part) + 1
-                ));
-                true
-            }
-            _ => {
-                notes.push(
-                    "the file has no end record: the bridge stopped without closing it (crash, \
-                     kill or power loss); up to the last second before the stop may be missing"
-                        .to_string(),
-                );
-                false
-            }
-        };
+        let scan = scan_bytes(bytes, |r| records.push(r))?;
         Ok(Recording {
-            header,
+            header: scan.header,
             records,
-            notes,
-            closed,
+            notes: scan.notes,
+            closed: scan.closed,
         })
     }
 

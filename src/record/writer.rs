@@ -309,6 +309,21 @@ impl RecordHandle {
         }
     }
 
+    /// Servo `servo`'s reply counts at `at`: requests answered well, and answered garbled or not
+    /// at all, since its bus started (saturated at `u32::MAX`).
+    pub fn replies(&self, at: Instant, servo: usize, answered: u64, missed: u64) {
+        if let Some(servo) = self.servo_index(servo) {
+            self.record_at(
+                at,
+                RecordBody::Replies {
+                    servo,
+                    answered: u32::try_from(answered).unwrap_or(u32::MAX),
+                    missed: u32::try_from(missed).unwrap_or(u32::MAX),
+                },
+            );
+        }
+    }
+
     /// Servo `servo`'s health or stall state, as it became at `at`.
     pub fn health(&self, at: Instant, servo: usize, health: Health, stalled: bool) {
         if let Some(servo) = self.servo_index(servo) {

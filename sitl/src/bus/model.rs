@@ -774,6 +774,11 @@ impl BusModel {
         self.with_servo(id, |servo| servo.set_load_n(now, f64::from(newtons)))
     }
 
+    /// Wear of servo `id` from `now` on (see [`Wear`](crate::servo::physics::Wear)).
+    pub fn set_wear(&mut self, now: Instant, id: u8, wear: crate::servo::physics::Wear) -> bool {
+        self.with_servo(id, |servo| servo.set_wear(now, wear))
+    }
+
     pub fn set_stalled(&mut self, now: Instant, id: u8, stalled: bool) -> bool {
         self.with_servo(id, |servo| servo.set_stalled(now, stalled))
     }

@@ -272,6 +272,12 @@ impl SimHandle {
         self.with_model(|model, now| model.set_load_n(now, id, newtons))
     }
 
+    /// Wear servo `id`: friction current in proportion to its speed, a stiff spot over part of
+    /// its stroke (`Wear::default()`: a new servo again).
+    pub fn set_wear(&self, id: u8, wear: crate::servo::physics::Wear) -> bool {
+        self.with_model(|model, now| model.set_wear(now, id, wear))
+    }
+
     /// Block servo `id`'s rod (or free it).
     pub fn set_stalled(&self, id: u8, stalled: bool) -> bool {
         self.with_model(|model, now| model.set_stalled(now, id, stalled))

@@ -12,7 +12,7 @@ use super::memory_map::{
     self as map, Access, FACTORY_ROM, LJ9DA41_MODEL_NUMBER, MAP_LEN, ROM_END, ROM_LEN, ROM_START,
     STROKE_LIMIT_MM_CENTI, reg,
 };
-use super::physics::{self, Drive, MECHANICAL_STROKE_MM, duration_from_secs};
+use super::physics::{self, Drive, MECHANICAL_STROKE_MM, Wear, duration_from_secs};
 use crate::events::{DamageKind, IgnoreReason};
 use crate::protocol::host_packet::{HostPacket, ShortForm, SpecialCommand};
 use crate::protocol::return_packet::{
@@ -156,6 +156,7 @@ pub struct Servo {
     voltage_v: f64,
     current_a: f64,
     load_n: f64,
+    wear: Wear,
     stalled: bool,
     overheating: bool,
     last_update: Instant,
@@ -183,6 +184,7 @@ impl Servo {
             voltage_v: config.voltage_v,
             current_a: physics::STANDING_CURRENT_A,
             load_n: 0.0,
+            wear: Wear::default(),
             stalled: false,
             overheating: false,
             last_update: now,
@@ -476,7 +478,7 @@ impl Servo {
         Drive {
             voltage_v: self.voltage_v,
             max_force_percent: f64::from(self.map[reg::MAX_FORCE].min(100)),
-            load_n: self.load_n,
+            load_n: self.load_n + self.wear.load_n_at(self.rod_mm),
         }
     }
 
@@ -583,6 +585,17 @@ impl Servo {
         } else {
             0.0
         };
+    }
+
+    /// Wear from `now` on (friction current, a stiff spot); `Wear::default()` for none.
+    pub fn set_wear(&mut self, now: Instant, wear: Wear) {
+        self.update(now);
+        self.wear = wear;
+    }
+
+    /// The wear set with [`Servo::set_wear`].
+    pub fn wear(&self) -> Wear {
+        self.wear
     }
 
     pub fn set_stalled(&mut self, now: Instant, stalled: bool) {
@@ -706,6 +719,7 @@ impl Servo {
         };
         let drive = self.drive();
         let blocked = self.stalled || drive.overloaded();
+        let rod_before = self.rod_mm;
         if !blocked {
             let reference = motion.reference_mm(t);
             let travel = drive.speed_mm_s() * dt.as_secs_f64();
@@ -732,6 +746,13 @@ impl Servo {
         } else {
             drive.moving_current_a()
         };
+        // Friction draws current in proportion to how fast the rod really moved in this step.
+        let dt_s = dt.as_secs_f64();
+        if dt_s > 0.0 {
+            let speed = (self.rod_mm - rod_before).abs() / dt_s;
+            self.current_a = (self.current_a + self.wear.friction_current_a(speed))
+                .min(drive.stall_current_a().max(self.current_a));
+        }
     }
 
     fn step_temperature(&mut self, dt: Duration) {

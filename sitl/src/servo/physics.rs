@@ -7,7 +7,11 @@
 //! - current 70 mA standing, 260 mA moving without load, plus about 10 mA per newton of load, up to the stall
 //!   current (5 A at 14.8 V and 100 % Max Force) when the rod is blocked;
 //! - temperature: a first-order model, `T → ambient + R_th × (current × voltage)` with time constant τ.
-//!   A stalled servo at 12 V reaches the 75 °C alarm in about 25 s and the 85 °C limit in about 32 s.
+//!   A stalled servo at 12 V reaches the 75 °C alarm in about 25 s and the 85 °C limit in about 32 s;
+//! - wear ([`Wear`], none by default): friction that draws extra current in proportion to the rod's
+//!   speed (a dry rod, a failing gear), and a stiff spot over part of the stroke where the rod meets an
+//!   extra load (a bent linkage) — moving or holding there. Both heat the servo through the current,
+//!   as any current does.
 //!
 //! Everything here is pure arithmetic on `f64`; no clock.
 
@@ -39,6 +43,49 @@ pub const OVERHEAT_CEILING_C: f64 = 130.0;
 pub const RESOLUTION_MM: f64 = 0.02;
 /// Mechanical end of travel on each side of the centre.
 pub const MECHANICAL_STROKE_MM: f64 = 25.0;
+
+/// A stiff spot: over the physical stroke `from_mm`–`to_mm` the rod meets an extra `load_n`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StiffSpot {
+    pub from_mm: f64,
+    pub to_mm: f64,
+    pub load_n: f64,
+}
+
+/// A servo's wear: what binding (a dry rod, a bent linkage, a failing gear) does to it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Wear {
+    /// Extra current per mm/s of rod speed while it moves, A·s/mm (≥ 0). 0.002 adds 0.1 A at
+    /// 50 mm/s, some 40 % of the current of a move without load.
+    pub friction_a_per_mm_s: f64,
+    pub stiff_spot: Option<StiffSpot>,
+}
+
+impl Wear {
+    /// The extra load at physical rod position `rod_mm`, newtons.
+    pub fn load_n_at(&self, rod_mm: f64) -> f64 {
+        match self.stiff_spot {
+            Some(spot)
+                if spot.load_n.is_finite()
+                    && rod_mm >= spot.from_mm.min(spot.to_mm)
+                    && rod_mm <= spot.from_mm.max(spot.to_mm) =>
+            {
+                spot.load_n.max(0.0)
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// The friction current at rod speed `speed_mm_s`, A.
+    pub fn friction_current_a(&self, speed_mm_s: f64) -> f64 {
+        let k = self.friction_a_per_mm_s;
+        if k.is_finite() && k > 0.0 {
+            k * speed_mm_s.abs()
+        } else {
+            0.0
+        }
+    }
+}
 
 /// How a servo is driven at one moment.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -170,6 +217,23 @@ mod tests {
         assert!((after_long - 55.0).abs() < 0.01);
         let cooling = temperature_after(80.0, 25.0, 0.0, Duration::from_secs(60));
         assert!(cooling < 80.0 && cooling > 25.0);
+    }
+
+    #[test]
+    fn wear_adds_current_with_speed_and_a_load_over_its_stiff_spot() {
+        let wear = Wear {
+            friction_a_per_mm_s: 0.002,
+            stiff_spot: Some(StiffSpot {
+                from_mm: 5.0,
+                to_mm: 2.0,
+                load_n: 50.0,
+            }),
+        };
+        assert!((wear.friction_current_a(-50.0) - 0.1).abs() < 1e-12);
+        assert_eq!(wear.load_n_at(3.0), 50.0);
+        assert_eq!(wear.load_n_at(6.0), 0.0);
+        assert_eq!(Wear::default().friction_current_a(100.0), 0.0);
+        assert_eq!(Wear::default().load_n_at(0.0), 0.0);
     }
 
     #[test]

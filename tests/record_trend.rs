@@ -1,0 +1,464 @@
+//! `record trend` on flights with a known answer: ten flights of four simulated servos (the
+//! `lj9da-sim` servo model in virtual time, its registers recorded as the bridge records
+//! telemetry), one of which wears from flight six on; and one real run through a pseudo-terminal,
+//! the bus master and the recorder, with the simulator's wear knob turned on one servo.
+
+mod tempdir;
+
+use lj9da_bridge::bus::{BusConfig, Goal, Health, ServoSetup, ShutdownForce, spawn_bus_observed};
+use lj9da_bridge::protocol::{
+    BaudRate, Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, ServoId, Telemetry,
+};
+use lj9da_bridge::record::cli::{RecordCommand, run};
+use lj9da_bridge::record::format::{RecordHeader, RecordServo, encode_header, encode_record};
+use lj9da_bridge::record::trend::{Since, Trend, Verdict, record_files, trend};
+use lj9da_bridge::record::trend_html::trend_page;
+use lj9da_bridge::record::{Record, RecordBody, RecordLimits, Recorder, StatusFeed};
+use lj9da_sim::servo::memory_map::{FACTORY_ROM, ROM_START, reg};
+use lj9da_sim::servo::{Servo, ServoConfig};
+use lj9da_sim::{HostPacket, ShortPacket, SimBus, SimConfig, Wear};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+use tempdir::TempDir;
+
+const NS_PER_DAY: i64 = 86_400 * 1_000_000_000;
+/// 2026-01-01T08:00:00Z.
+const FIRST_FLIGHT_NS: i64 = 1_767_254_400 * 1_000_000_000;
+/// Seconds of each virtual flight.
+const FLIGHT_S: u64 = 40;
+
+fn servos() -> Vec<RecordServo> {
+    vec![
+        RecordServo::new("aileron_left", "wing", 1, 1),
+        RecordServo::new("aileron_right", "wing", 2, 2),
+        RecordServo::new("elevator", "tail", 3, 3),
+        RecordServo::new("rudder", "tail", 4, 4),
+    ]
+}
+
+fn write(servo: &mut Servo, now: Instant, id: u8, address: usize, data: &[u8]) {
+    let packet = HostPacket::Short(ShortPacket::write(id, address as u8, data, 0));
+    servo.receive(now, &packet);
+}
+
+fn u16_at(registers: &[u8], at: usize) -> u16 {
+    u16::from_le_bytes([registers[at], registers[at + 1]])
+}
+
+/// Flight `n` (0-based) of the four servos, with the given friction wear (A per mm/s) on each,
+/// written as a record file in `dir`. The flight: a sine sweep of ±10 mm (its amplitude a little
+/// different each flight) for 4 s, then 2 s holding at a fixed position, again and again;
+/// telemetry every 10 ms; the ambient temperature differs from flight to flight.
+fn fly(dir: &Path, n: usize, friction: [f64; 4]) -> PathBuf {
+    let start = Instant::now();
+    let table = servos();
+    let ambient = 20.0 + (n * 7 % 10) as f64;
+    let amplitude_centi = 1000.0 * (1.0 + 0.04 * (((n * 3) % 5) as f64 - 2.0) / 2.0);
+    let mut sim: Vec<Servo> = table
+        .iter()
+        .zip(friction)
+        .map(|(s, k)| {
+            let mut servo = Servo::new(
+                ServoConfig {
+                    id: s.id,
+                    baud_code: FACTORY_ROM[reg::BAUD_RATE - ROM_START],
+                    voltage_v: 12.0,
+                    ambient_c: ambient,
+                },
+                start,
+            );
+            write(&mut servo, start, s.id, reg::FORCE_ENABLE, &[1]);
+            servo.set_wear(
+                start,
+                Wear {
+                    friction_a_per_mm_s: k,
+                    stiff_spot: None,
+                },
+            );
+            servo
+        })
+        .collect();
+    let mut bytes = encode_header(&RecordHeader::new(
+        FIRST_FLIGHT_NS + n as i64 * NS_PER_DAY,
+        table.clone(),
+    ));
+    let mut put = |t_us: u64, body: RecordBody| {
+        encode_record(&Record { t_us, body }, &mut bytes);
+    };
+    for index in 0..table.len() {
+        put(
+            0,
+            RecordBody::Health {
+                servo: index as u8,
+                health: Health::Online,
+                stalled: false,
+            },
+        );
+    }
+    let mut goals = vec![i16::MIN; table.len()];
+    // Goals every 20 ms, each to be reached in 20 ms (a goal time, as a mapping may set);
+    // telemetry every 13 ms, so that samples fall anywhere in a goal's period.
+    for ms in 0..FLIGHT_S * 1000 {
+        let now = start + Duration::from_millis(ms);
+        let phase = (ms % 6000) as f64 / 1000.0;
+        let goal_centi = if phase < 4.0 {
+            (amplitude_centi * (std::f64::consts::PI * phase).sin()).round() as i16
+        } else {
+            500
+        };
+        for (index, (servo, s)) in sim.iter_mut().zip(&table).enumerate() {
+            if ms.is_multiple_of(20) && goals[index] != goal_centi {
+                let mut data = goal_centi.to_le_bytes().to_vec();
+                data.extend_from_slice(&2u16.to_le_bytes());
+                write(servo, now, s.id, reg::GOAL_POSITION, &data);
+                goals[index] = goal_centi;
+                put(
+                    ms * 1000,
+                    RecordBody::Goal {
+                        servo: index as u8,
+                        goal: Goal::Position(MmCenti(goal_centi)),
+                    },
+                );
+            }
+            if !(ms + index as u64 * 3).is_multiple_of(13) {
+                continue;
+            }
+            servo.update(now);
+            let r = servo.registers();
+            put(
+                ms * 1000 + 500,
+                RecordBody::Telemetry {
+                    servo: index as u8,
+                    telemetry: Telemetry {
+                        present_position: MmCenti(u16_at(r, reg::PRESENT_POSITION) as i16),
+                        present_time: Ms10(u16_at(r, reg::PRESENT_TIME)),
+                        present_load: Ma10(u16_at(r, reg::PRESENT_LOAD)),
+                        present_temperature: Celsius(u16_at(r, reg::PRESENT_TEMPERATURE) as i16),
+                        present_voltage: Mv10(u16_at(r, reg::PRESENT_VOLTAGE)),
+                    },
+                    flags: ReplyFlags(servo.status_flags()),
+                },
+            );
+        }
+    }
+    let end_us = FLIGHT_S * 1_000_000 + 10_000;
+    for index in 0..table.len() {
+        put(
+            end_us,
+            RecordBody::Replies {
+                servo: index as u8,
+                answered: (FLIGHT_S * 1000 / 13) as u32,
+                missed: if index == 3 { 40 } else { 0 },
+            },
+        );
+    }
+    put(end_us, RecordBody::End { continued: false });
+    let path = dir.join(format!("flight{:02}.lj9rec", n + 1));
+    std::fs::write(&path, &bytes).unwrap();
+    path
+}
+
+fn servo<'a>(t: &'a Trend, name: &str) -> &'a lj9da_bridge::record::trend::ServoTrend {
+    t.servos.iter().find(|s| s.servo.name == name).unwrap()
+}
+
+#[test]
+fn the_servo_whose_friction_rises_is_marked_from_the_flight_it_passes_the_threshold() {
+    let worn_dir = TempDir::new("trend-worn");
+    let new_dir = TempDir::new("trend-new");
+    // The first five flights of both sets: no wear anywhere.
+    for n in 0..5 {
+        fly(worn_dir.path(), n, [0.0; 4]);
+        fly(new_dir.path(), n, [0.0; 4]);
+    }
+    let files = record_files(&[worn_dir.path().to_path_buf()]).unwrap();
+    let (first, notes) = trend(&files, &[]);
+    assert!(
+        notes.errors.is_empty() && notes.notes.is_empty(),
+        "{notes:?}"
+    );
+    assert!(first.servos.iter().all(|s| s.verdict == Verdict::Baseline));
+    // The elevator's friction from flight six on, as a share of its baseline friction figure:
+    // +8 %, +16 % (below the +25 % threshold), then +40 %, +60 %, +80 %.
+    let base = servo(&first, "elevator")
+        .baseline
+        .friction_ma_per_mm_s
+        .unwrap()
+        / 1000.0;
+    let rises = [0.08, 0.16, 0.40, 0.60, 0.80];
+    for (k, rise) in rises.iter().enumerate() {
+        fly(worn_dir.path(), 5 + k, [0.0, 0.0, rise * base, 0.0]);
+        fly(new_dir.path(), 5 + k, [0.0; 4]);
+    }
+
+    let files = record_files(&[worn_dir.path().to_path_buf()]).unwrap();
+    assert_eq!(files.len(), 10);
+    let (worn, _) = trend(&files, &[]);
+    let text = worn.to_string();
+    let elevator = servo(&worn, "elevator");
+    assert_eq!(elevator.verdict, Verdict::Inspect, "{text}");
+    assert_eq!(elevator.marked_since, Some(8), "{text}");
+    assert!(
+        elevator.triggers.iter().any(|f| f.figure == "friction"),
+        "{text}"
+    );
+    let marked: Vec<usize> = elevator
+        .flights
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| !f.findings.is_empty())
+        .map(|(i, _)| i + 1)
+        .collect();
+    assert_eq!(marked, [8, 9, 10], "{text}");
+    // The figure follows the knob: each flight's friction over the baseline by about its rise.
+    for (k, rise) in rises.iter().enumerate() {
+        let f = &elevator.flights[5 + k];
+        let change =
+            f.friction_ma_per_mm_s.unwrap() / elevator.baseline.friction_ma_per_mm_s.unwrap() - 1.0;
+        assert!(
+            (change - rise).abs() < 0.06,
+            "flight {}: {change} for {rise}",
+            6 + k
+        );
+    }
+    // More friction, more heat: the most worn flight heats faster than the baseline.
+    let heating = |i: usize| elevator.flights[i].heating_c_per_min.unwrap();
+    assert!(
+        heating(9) > elevator.baseline.heating_c_per_min.unwrap(),
+        "{text}"
+    );
+    for other in ["aileron_left", "aileron_right", "rudder"] {
+        let s = servo(&worn, other);
+        assert_eq!(s.verdict, Verdict::Ok, "{other}: {text}");
+        assert!(s.flights.iter().all(|f| f.findings.is_empty()), "{text}");
+    }
+    assert!(
+        text.contains("elevator (bus tail, ID 3): INSPECT — friction +"),
+        "{text}"
+    );
+    assert!(text.contains("since flight 8"), "{text}");
+
+    // The figures of a flight: ±10 mm sines at 0.5 Hz, 4 s of every 6, for 40 s.
+    let f = &servo(&worn, "aileron_left").flights[0];
+    assert!((f.force_on_s - 40.0).abs() < 0.1, "{f:?}");
+    // Two sine periods of 40 mm each per 6 s, and the move to the holding point: about 560 mm.
+    assert!(f.travel_mm > 500.0 && f.travel_mm < 650.0, "{f:?}");
+    // Per 6 s: four turns of the sines, and two around the holding point.
+    assert!((36..=42).contains(&f.reversals), "{f:?}");
+    assert!(f.motion_s > 20.0 && f.motion_s < 30.0, "{f:?}");
+    assert!((f.holding_a.unwrap() - 0.07).abs() < 0.015, "{f:?}");
+    assert_eq!(f.stalled_s, 0.0);
+    assert_eq!(f.bad_replies, Some(0.0));
+    let rudder = &servo(&worn, "rudder").flights[0];
+    assert!((rudder.bad_replies.unwrap() - 40.0 / 3116.0).abs() < 1e-3);
+
+    // The same flights without wear: nothing marked.
+    let files = record_files(&[new_dir.path().to_path_buf()]).unwrap();
+    let (new, _) = trend(&files, &[]);
+    for s in &new.servos {
+        assert_eq!(s.verdict, Verdict::Ok, "{}", new);
+        assert!(s.flights.iter().all(|f| f.findings.is_empty()), "{new}");
+    }
+
+    // A new baseline after the elevator was replaced on the day of flight eight: nothing to
+    // judge yet for it; the others keep theirs.
+    let since: Since = "elevator=2026-01-08".parse().unwrap();
+    let (replaced, _) = trend(&files_of(worn_dir.path()), &[since]);
+    let elevator = servo(&replaced, "elevator");
+    assert_eq!(elevator.left_out, 7);
+    assert_eq!(elevator.verdict, Verdict::Baseline);
+    assert_eq!(servo(&replaced, "rudder").flights.len(), 10);
+
+    // JSON and the page say the same.
+    let json = serde_json::to_value(&worn).unwrap();
+    let elevator = json["servos"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["servo"]["name"] == "elevator")
+        .unwrap();
+    assert_eq!(elevator["verdict"], "inspect");
+    assert_eq!(elevator["triggers"][0]["figure"], "friction");
+    assert_eq!(json["thresholds"]["rise_limit"], 0.25);
+    let page = trend_page(&worn);
+    assert!(page.starts_with("<!DOCTYPE html>") && page.trim_end().ends_with("</html>"));
+    assert_eq!(page.matches("<svg data-zoom").count(), 4);
+    assert_eq!(
+        page.matches(r#"class="crossed" data-figure="friction""#)
+            .count(),
+        3
+    );
+    assert!(page.contains(r#"data-servo="elevator" data-verdict="inspect""#));
+    assert!(page.matches(r#"class="band""#).count() >= 4 * 3);
+    for outside in ["src=", "<link", "@import", "https:"] {
+        assert!(!page.contains(outside), "{outside}");
+    }
+
+    // The subcommand: text, JSON, page.
+    let html = worn_dir.path().join("out/trend.html");
+    for json in [false, true] {
+        assert_eq!(
+            run(RecordCommand::Trend {
+                paths: vec![worn_dir.path().to_path_buf()],
+                json,
+                since: vec![],
+                html: Some(html.clone()),
+            }),
+            ExitCode::SUCCESS
+        );
+    }
+    assert!(std::fs::read_to_string(&html).unwrap().contains("elevator"));
+    assert_eq!(
+        run(RecordCommand::Trend {
+            paths: vec![worn_dir.path().join("nothing-here")],
+            json: false,
+            since: vec![],
+            html: None,
+        }),
+        ExitCode::FAILURE
+    );
+}
+
+fn files_of(dir: &Path) -> Vec<PathBuf> {
+    record_files(&[dir.to_path_buf()]).unwrap()
+}
+
+#[test]
+fn the_parts_of_one_run_make_one_flight_and_older_formats_read() {
+    // One run in two parts, the second a format 1.1 file (no replies records): one flight.
+    let dir = TempDir::new("trend-parts");
+    let table = vec![RecordServo::new("flap", "wing", 5, 7)];
+    let start = FIRST_FLIGHT_NS;
+    for part in 0..2u16 {
+        let mut header = RecordHeader::new(start, table.clone());
+        header.part = part;
+        header.version = (1, 1);
+        let mut bytes = encode_header(&header);
+        for k in 0..500u64 {
+            let t_us = (u64::from(part) * 500 + k) * 20_000;
+            // 10 mm/s up and down over 1 s, 20 ms apart.
+            let mm = ((t_us / 20_000) % 100) as i16;
+            let centi = if mm < 50 { mm * 20 } else { (100 - mm) * 20 };
+            encode_record(
+                &Record {
+                    t_us,
+                    body: RecordBody::Telemetry {
+                        servo: 0,
+                        telemetry: Telemetry {
+                            present_position: MmCenti(centi),
+                            present_time: Ms10(0),
+                            present_load: Ma10(30),
+                            present_temperature: Celsius(30 + (part as i16) * 2),
+                            present_voltage: Mv10(1200),
+                        },
+                        flags: ReplyFlags(0),
+                    },
+                },
+                &mut bytes,
+            );
+        }
+        encode_record(
+            &Record {
+                t_us: (u64::from(part) + 1) * 500 * 20_000,
+                body: RecordBody::End {
+                    continued: part == 0,
+                },
+            },
+            &mut bytes,
+        );
+        std::fs::write(dir.path().join(format!("run-{part}.lj9rec")), bytes).unwrap();
+    }
+    let (t, notes) = trend(&files_of(dir.path()), &[]);
+    assert!(notes.errors.is_empty(), "{notes:?}");
+    let flap = &t.servos[0];
+    assert_eq!(flap.flights.len(), 1);
+    let f = &flap.flights[0];
+    assert_eq!(f.files.len(), 2);
+    // 20 s of samples, 10 sweeps of 10 mm each way: 200 mm and 19 reversals.
+    assert!((f.force_on_s - 19.98).abs() < 0.01, "{f:?}");
+    assert!((f.travel_mm - 198.0).abs() < 2.1, "{f:?}");
+    assert_eq!(f.reversals, 19, "{f:?}");
+    // 0.30 A at 10 mm/s: 30 mA per mm/s (a little more: the speed over a span across a
+    // reversal is lower).
+    assert!(
+        (f.friction_ma_per_mm_s.unwrap() - 30.0).abs() < 1.5,
+        "{f:?}"
+    );
+    assert_eq!(f.peak_c, Some(32.0));
+    assert_eq!(f.bad_replies, None);
+    assert_eq!(flap.verdict, Verdict::Baseline);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_simulators_wear_knob_shows_in_a_recorded_run() {
+    let sim = SimBus::spawn_pty(SimConfig {
+        ids: vec![1, 2],
+        ..SimConfig::default()
+    })
+    .unwrap();
+    assert!(sim.handle().set_wear(
+        2,
+        Wear {
+            friction_a_per_mm_s: 0.01,
+            stiff_spot: None,
+        },
+    ));
+    let table = vec![
+        RecordServo::new("new", "sim", 1, 1),
+        RecordServo::new("worn", "sim", 2, 2),
+    ];
+    let setups = table
+        .iter()
+        .map(|s| ServoSetup::new(ServoId::new(s.id).unwrap(), &s.name))
+        .collect();
+    let mut bus_cfg = BusConfig::new("sim", BaudRate::B115200, setups);
+    bus_cfg.turnaround = Duration::from_millis(20);
+    bus_cfg.offline_after_timeouts = 50;
+    bus_cfg.stale_after = Duration::from_secs(2);
+    let dir = TempDir::new("trend-sim");
+    let record = Recorder::start(dir.path(), &table, RecordLimits::default()).unwrap();
+    let mut feed = StatusFeed::new(record.clone(), &table);
+    let bus = spawn_bus_observed(bus_cfg, sim.path(), Box::new(move |s| feed.observe(s)));
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !bus
+        .status()
+        .servos
+        .iter()
+        .all(|s| s.health == Health::Online)
+    {
+        assert!(Instant::now() < deadline, "servos did not come online");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    // Sweeps of ±8 mm at 0.5 Hz for 6 s, goals at 50 Hz.
+    let began = Instant::now();
+    while began.elapsed() < Duration::from_secs(6) {
+        let t = began.elapsed().as_secs_f64();
+        let centi = (800.0 * (std::f64::consts::PI * t).sin()).round() as i16;
+        for (index, s) in table.iter().enumerate() {
+            let goal = Goal::Position(MmCenti(centi));
+            bus.set_goal(ServoId::new(s.id).unwrap(), goal);
+            record.goal(index, goal);
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    bus.shutdown(ShutdownForce::AsIs).await;
+    let stats = record.finish();
+    sim.shutdown();
+
+    let (t, notes) = trend(&stats.files, &[]);
+    assert!(notes.errors.is_empty(), "{notes:?}");
+    let text = t.to_string();
+    let new = &servo(&t, "new").flights[0];
+    let worn = &servo(&t, "worn").flights[0];
+    assert!(new.travel_mm > 60.0 && worn.travel_mm > 60.0, "{text}");
+    let (a, b) = (
+        new.friction_ma_per_mm_s.unwrap(),
+        worn.friction_ma_per_mm_s.unwrap(),
+    );
+    // 10 mA per mm/s of friction on top of the new servo's figure.
+    assert!(b > a + 6.0, "{text}");
+    // The run wrote its reply counts (format 1.2): a clean line.
+    assert!(new.bad_replies.unwrap() < 0.05, "{text}");
+    assert!(worn.peak_a.unwrap() > new.peak_a.unwrap(), "{text}");
+}
