@@ -492,6 +492,8 @@ fn reply_counts_are_recorded_when_they_change_at_most_once_a_second() {
         }],
         counters: BusCounters::default(),
         at: t0 + Duration::from_millis(ms),
+        telemetry_asked_hz: None,
+        thread_cpu: Duration::ZERO,
     };
     // Nothing asked yet: no record. Then the first counts; changes within a second wait; the
     // same counts a second later are not written again.
