@@ -812,7 +812,9 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
         "", "", "", "/servo", "", "", "idle %", "p50", "", "", "", "", "p99", "max", "/set", "",
         "", "late", "late", "", "µs", "%",
     ];
-    let widths = [8, 7, 6, 9, 6, 7, 6, 5, 7, 7, 7, 8, 8, 8, 11, 4, 4, 4, 4, 6, 6, 5];
+    let widths = [
+        8, 7, 6, 9, 6, 7, 6, 5, 7, 7, 7, 8, 8, 8, 11, 4, 4, 4, 4, 6, 6, 5,
+    ];
     let line = |label: &str, cells: &[String]| {
         let mut out = format!("{label:<27}");
         for (cell, w) in cells.iter().zip(widths) {

@@ -641,7 +641,9 @@ fn main() {
     println!(
         "end-to-end: UDP SERVO_OUTPUT_RAW → lj9da-bridge process → simulated LJ9DA41s on ptys, 115200 bit/s"
     );
-    println!("machine: {cpu}, {cores} cores; {seconds} s per case (at least 8–10 s for steps, gap, rate)");
+    println!(
+        "machine: {cpu}, {cores} cores; {seconds} s per case (at least 8–10 s for steps, gap, rate)"
+    );
     println!("bridge: {}", bridge_exe().to_string_lossy());
     println!(
         "{:<16} {:>4} {:>5} {:>7} {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>7} {:>7} {:>6} {:>6} {:>6} {:>6} {:>8} {:>4} {:>6}",

@@ -133,9 +133,8 @@ impl BusSection {
         };
         let telemetry = match &raw.telemetry_hz {
             None => TelemetryRate::DEFAULT,
-            Some(rate) => telemetry_rate(rate.get_ref()).map_err(|reason| {
-                scope.error_on(rate, "telemetry_hz", reason)
-            })?,
+            Some(rate) => telemetry_rate(rate.get_ref())
+                .map_err(|reason| scope.error_on(rate, "telemetry_hz", reason))?,
         };
         Ok(BusSection {
             name: raw.name.get_ref().clone(),
@@ -209,10 +208,21 @@ mod tests {
         assert_eq!(rate("telemetry_hz = 50"), Ok(TelemetryRate::Hz(50.0)));
         assert_eq!(rate("telemetry_hz = 12.5"), Ok(TelemetryRate::Hz(12.5)));
         assert_eq!(rate("telemetry_hz = \"max\""), Ok(TelemetryRate::Max));
-        assert!(rate("telemetry_hz = 0").unwrap_err().contains("outside 1–1000 Hz"));
+        assert!(
+            rate("telemetry_hz = 0")
+                .unwrap_err()
+                .contains("outside 1–1000 Hz")
+        );
         assert!(rate("telemetry_hz = 5000").unwrap_err().contains("\"max\""));
-        assert!(rate("telemetry_hz = \"fast\"").unwrap_err().contains("not a rate"));
-        assert_eq!(TelemetryRate::Hz(50.0).min_interval(), Duration::from_millis(20));
+        assert!(
+            rate("telemetry_hz = \"fast\"")
+                .unwrap_err()
+                .contains("not a rate")
+        );
+        assert_eq!(
+            TelemetryRate::Hz(50.0).min_interval(),
+            Duration::from_millis(20)
+        );
         assert_eq!(TelemetryRate::Max.min_interval(), Duration::ZERO);
     }
 

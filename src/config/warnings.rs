@@ -18,7 +18,11 @@ pub fn warnings(cfg: &Config) -> Vec<String> {
     out.extend(px4_port_1_channels(cfg));
     out.extend(mission_planner_names(cfg));
     out.extend(unsigned_outside_links(cfg));
-    out.extend(cfg.buses.iter().filter_map(|b| telemetry_beyond_wire(cfg, b)));
+    out.extend(
+        cfg.buses
+            .iter()
+            .filter_map(|b| telemetry_beyond_wire(cfg, b)),
+    );
     out
 }
 

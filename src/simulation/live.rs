@@ -497,7 +497,8 @@ fn bus_line(b: &BusRow, name_width: usize) -> String {
         if b.port_open { "" } else { "  PORT LOST" },
         share(b.utilisation_percent),
         share(b.bad_replies_percent),
-        b.reads_hz.map_or_else(|| "-".to_string(), |hz| format!("{hz:.0}")),
+        b.reads_hz
+            .map_or_else(|| "-".to_string(), |hz| format!("{hz:.0}")),
         b.reads_asked_hz
             .map_or_else(|| "max".to_string(), |hz| format!("{hz:.0}")),
         b.late_wakeups
