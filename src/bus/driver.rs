@@ -682,8 +682,9 @@ impl Driver {
         }
     }
 
-    /// Publish the status (when it changed, or every [`STATUS_REFRESH`]), then the events:
-    /// whoever reacts to an event finds a status at least as new as the event.
+    /// Publish the status (when it changed, at most every [`publish_spacing`], or every
+    /// [`STATUS_REFRESH`]; at once with an event), then the events: whoever reacts to an event
+    /// finds a status at least as new as the event.
     fn publish(&mut self, force: bool) {
         let now = Instant::now();
         let mut events = Vec::new();
@@ -692,10 +693,16 @@ impl Driver {
             while let Some(event) = core.master.poll_event() {
                 events.push(event);
             }
-            let due = core.master.take_changed()
-                || force
-                || now.saturating_duration_since(self.published_at) >= STATUS_REFRESH;
-            due.then(|| core.master.status_at(now))
+            let since = now.saturating_duration_since(self.published_at);
+            let spacing = publish_spacing(core.master.config());
+            let due = force
+                || !events.is_empty()
+                || since >= STATUS_REFRESH
+                || (core.master.has_changed() && since >= spacing);
+            due.then(|| {
+                core.master.take_changed();
+                core.master.status_at(now)
+            })
         };
         if let Some(mut status) = status {
             status.thread_cpu = thread_cpu_time();
@@ -735,7 +742,10 @@ impl Driver {
             let (wake_at, reply_wait, wire_idle_at) = {
                 let mut core = self.shared.core();
                 let now = Instant::now();
-                if let Err(reason) = core.read_input(&mut buf, now) {
+                // Before the look at an awaited reply nothing need be read: its bytes wait in
+                // the tty (a read then would be a system call for nothing).
+                let too_early = core.master.reply_look_at().is_some_and(|at| now < at);
+                if !too_early && let Err(reason) = core.read_input(&mut buf, now) {
                     return Exit::PortLost(reason);
                 }
                 core.master.handle_timeout(now);
@@ -803,6 +813,16 @@ impl Driver {
             drop(self.shared.sleep(core, wake_at));
         }
     }
+}
+
+/// How often at most a changed status is published: building and passing one on costs about
+/// as much as a transaction, so a status follows every change only on a bus that reads as
+/// often as it can. Half the telemetry interval (at most 5 ms), so that no servo's reading is
+/// replaced before a status has carried it (the flight record keeps every one). The thread
+/// never wakes only to publish: a change held back goes out at its next wake-up (a read, a
+/// deadline, or [`STATUS_REFRESH`]).
+fn publish_spacing(cfg: &BusConfig) -> Duration {
+    (cfg.telemetry_min_interval / 2).min(Duration::from_millis(5))
 }
 
 /// The CPU time the calling thread has used (`getrusage(RUSAGE_THREAD)`; zero where refused).

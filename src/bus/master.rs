@@ -115,6 +115,9 @@ pub struct BusMaster {
     changed: bool,
     /// When the servos' reply quality was last judged.
     judged_at: Instant,
+    /// Until when a periodic read may start early: the instant a reply ended, and a little
+    /// (see [`BusMaster::next_request`]).
+    chain_until: Option<Instant>,
 }
 
 impl BusMaster {
@@ -148,6 +151,7 @@ impl BusMaster {
             shutdown: None,
             changed: true,
             judged_at: now,
+            chain_until: None,
         }
     }
 
@@ -329,6 +333,7 @@ impl BusMaster {
         }
         self.pending = None;
         self.changed = true;
+        self.chain_until = Some(now + REACTION);
         self.learn_lateness(&p, now);
         self.counters.wire_busy_ns += self.cfg.baud.wire_time_ns(reply.wire_len());
         let mut events = Vec::new();
@@ -533,13 +538,24 @@ impl BusMaster {
         {
             return Some((i, Transaction::Force(mode)));
         }
+        // Right after a reply, a periodic read due within a quarter of the telemetry interval
+        // starts now: with a telemetry rate the servos are read one after the other, each
+        // read started by the reply before it, and the bus thread wakes once per burst
+        // instead of once per read besides each reply.
+        let chained = self.chain_until.is_some_and(|until| at <= until);
+        let early = if chained {
+            self.cfg.telemetry_min_interval / 4
+        } else {
+            Duration::ZERO
+        };
         let n = self.servos.len();
         for k in 1..=n {
             let i = (self.cursor + k) % n;
             let Some((when, tx)) = self.servos[i].poll_due(&self.cfg) else {
                 continue;
             };
-            if !due(when) {
+            let periodic = matches!(tx, Transaction::Telemetry | Transaction::Motion);
+            if !due(when) && !(periodic && when.is_some_and(|t| t <= at + early)) {
                 continue;
             }
             if self.fits(i, tx, at) {
@@ -913,16 +929,17 @@ impl BusMaster {
     }
 
     /// When a driver that leaves the port unread while a reply comes in should first look for
-    /// it (then, if part is missing, wait for [`BusMaster::bytes_awaited`] bytes): one byte
-    /// time before replies have been found whole so far, never before
+    /// it (then, if part is missing, wait for [`BusMaster::bytes_awaited`] bytes): when three
+    /// replies in four have been found whole so far, never before
     /// [`BusMaster::reply_complete_at`]. `None` when no reply is pending.
     ///
     /// The lateness is learned from the replies, as the one three in four stay under: a reply
     /// completed while the driver waited for its last bytes tells when it completed, and
     /// raises the lateness by 3/16 of a byte time if that was later; any other lowers it by
-    /// 1/16 (one found whole at the first look completed before that look). Looking early
-    /// costs the driver a wake-up in the kernel per byte still missing; looking late leaves the
-    /// bus idle.
+    /// 1/16 (one found whole at the first look completed before that look). A look that finds
+    /// the reply whole costs the driver one wake-up for the transaction; one that comes early
+    /// costs a second (and a change of the tty's read threshold); one that comes late leaves
+    /// the bus idle until then.
     pub fn reply_look_at(&self) -> Option<Instant> {
         self.pending.as_ref().map(|p| self.look_at(p))
     }
@@ -933,8 +950,7 @@ impl BusMaster {
     }
 
     fn look_at(&self, p: &Pending) -> Instant {
-        let early = self.reply_lateness.saturating_sub(self.cfg.wire_time(1));
-        (p.complete_at + early).min(p.deadline)
+        (p.complete_at + self.reply_lateness).min(p.deadline)
     }
 
     fn learn_lateness(&mut self, p: &Pending, now: Instant) {
@@ -981,6 +997,12 @@ impl BusMaster {
                 .then(|| 1.0 / self.cfg.telemetry_min_interval.as_secs_f32()),
             thread_cpu: Duration::ZERO,
         }
+    }
+
+    /// Whether anything a status snapshot shows (besides ages) changed since
+    /// [`BusMaster::take_changed`], without resetting it.
+    pub fn has_changed(&self) -> bool {
+        self.changed
     }
 
     /// Whether anything a status snapshot shows (besides ages) changed since the last call.

@@ -142,17 +142,23 @@ pub fn talk_overs(events: &std::sync::mpsc::Receiver<lj9da_sim::BusEvent>) -> BT
 /// late reply in the model: a talk-over of a reply it had already counted as missing. What it
 /// must never do is write over a reply it is still waiting for, so each talked-over reply of a
 /// servo must be one of that servo's timeouts.
+///
+/// Returns whether the line was judged strictly (no talk-over, no reply missed): always where
+/// the simulator kept time, and where it ran late without spoiling anything.
 pub fn assert_line_kept(
     stats: &lj9da_sim::BusStats,
     status: &BusStatus,
     talk_overs: &BTreeMap<u8, u64>,
-) {
+) -> bool {
     let c = &status.counters;
-    if stats.handed_late == 0 {
+    // Judged strictly: where the simulator kept time, or where it ran late and the line was
+    // kept all the same (lateness can excuse a talk-over or a lost reply, never require one).
+    let kept = stats.collisions == 0 && c.timeouts == 0 && c.bad_sums == 0;
+    if stats.handed_late == 0 || kept {
         assert_eq!(stats.collisions, 0, "{stats:?} {c:?}");
         assert_eq!(c.timeouts, 0, "{c:?}");
         assert_eq!(c.bad_sums, 0, "{c:?}");
-        return;
+        return true;
     }
     // A talked-over reply reaches the bridge garbled: its bad sums can be those, no more.
     assert!(
@@ -175,4 +181,5 @@ pub fn assert_line_kept(
          not judged: a line never talked over, every request answered",
         stats.handed_late, stats.collisions, c.timeouts
     );
+    false
 }
