@@ -555,7 +555,8 @@ impl BusMaster {
                 continue;
             };
             let periodic = matches!(tx, Transaction::Telemetry | Transaction::Motion);
-            if !due(when) && !(periodic && when.is_some_and(|t| t <= at + early)) {
+            let due_early = periodic && when.is_some_and(|t| t <= at + early);
+            if !(due(when) || due_early) {
                 continue;
             }
             if self.fits(i, tx, at) {
