@@ -1,8 +1,8 @@
 //! End-to-end benchmark: a MAVLink sender on UDP → the bridge process (`lj9da-bridge run`) →
 //! simulated LJ9DA41s on pseudo-terminals at 115 200 bit/s.
 //!
-//! Cases: 4 and 8 servos on port 0 at 50 Hz and 400 Hz, every message a new goal; and 4 servos
-//! on two ports (channels 1–3 in SERVO_OUTPUT_RAW port 0, channel 17 in port 1, sent back to
+//! Cases at 115 200 bit/s: 4 and 8 servos on port 0 at 50 Hz and 400 Hz, every message a new
+//! goal; and 4 servos on two ports (channels 1–3 in SERVO_OUTPUT_RAW port 0, channel 17 in port 1, sent back to
 //! back as ArduPilot does) at 50 Hz, each quiet and beside two CPU hogs (`E2E_HOGS=n` changes
 //! how many), in these scenarios:
 //! - `sweep` (steady), `±1ms` (ticks jitter uniformly), `5%late` (one message in twenty 3–8 ms
@@ -12,7 +12,10 @@
 //! - `gap`: steps every 0.3 s; port 1 falls silent for 2.5 s after a third of the run;
 //! - `rate`: steps every 0.3 s; for 3 s after a third of the run the stream slows to 12.5 Hz
 //!   (ArduPilot during a parameter or log transfer), then comes back to 50 Hz;
-//! - `garbled`: the sweep with a fifth of servo 1's replies corrupted.
+//! - `garbled`: the sweep with a fifth of servo 1's replies corrupted;
+//!
+//! and the two-port sweep and steps at 460 800 bit/s (`@460k`), for the bridge's CPU at the
+//! servo's fastest rate. `E2E_TELEMETRY=max` (or a number) sets the bus's `telemetry_hz`.
 //!
 //! For each it prints:
 //! - latency from a SERVO_OUTPUT_RAW datagram's send to the first byte of the long packet that
@@ -121,6 +124,8 @@ impl Scenario {
 struct Case {
     servos: usize,
     rate_hz: f64,
+    /// The bus's bit rate.
+    baud: u32,
     /// 1: every servo on port 0; 2: the last servo on channel 17 (port 1).
     ports: u8,
     scenario: Scenario,
@@ -130,7 +135,7 @@ struct Case {
 impl Case {
     fn name(&self) -> String {
         format!(
-            "{}x{}{}{}",
+            "{}x{}{}{}{}",
             self.servos,
             self.rate_hz,
             if self.ports == 2 { "x2p" } else { "" },
@@ -142,7 +147,8 @@ impl Case {
                 Scenario::PortGap => "g",
                 Scenario::RateDrop => "r",
                 Scenario::Garbled => "c",
-            }
+            },
+            if self.baud == 115_200 { "" } else { "@460k" },
         )
     }
 }
@@ -223,10 +229,20 @@ fn free_udp_port() -> u16 {
         .port()
 }
 
-fn mapping(servos: usize, ports: u8, port: &str, ap: u16, gcs: u16) -> String {
+/// The bench's mapping. The failsafe timeout (3 s) outlasts the `gap` scenario's silent port
+/// (2.5 s). `$E2E_TELEMETRY` (e.g. `50` or `"max"`) sets the bus's `telemetry_hz`; unset, the
+/// bridge's default (and a build that predates the key still reads the file).
+fn mapping(case: &Case, port: &str, ap: u16, gcs: u16) -> String {
+    let (servos, ports, baud) = (case.servos, case.ports, case.baud);
+    let telemetry = std::env::var("E2E_TELEMETRY")
+        .map(|t| match t.parse::<f64>() {
+            Ok(hz) => format!("telemetry_hz = {hz}\n"),
+            Err(_) => format!("telemetry_hz = \"{t}\"\n"),
+        })
+        .unwrap_or_default();
     let mut s = format!(
-        "[mavlink]\nconnection = \"udpin:127.0.0.1:{ap}\"\ngcs = \"udpout:127.0.0.1:{gcs}\"\nautopilot_system_id = 1\nfailsafe_timeout_ms = 2000\n\
-         [telemetry]\nrate_hz = 20\n[bridge]\non_exit = \"hold\"\n[[bus]]\nname = \"b\"\nport = \"{port}\"\nbaud = 115200\n"
+        "[mavlink]\nconnection = \"udpin:127.0.0.1:{ap}\"\ngcs = \"udpout:127.0.0.1:{gcs}\"\nautopilot_system_id = 1\nfailsafe_timeout_ms = 3000\n\
+         [telemetry]\nrate_hz = 20\n[bridge]\non_exit = \"hold\"\n[[bus]]\nname = \"b\"\nport = \"{port}\"\nbaud = {baud}\n{telemetry}"
     );
     for i in 1..=servos {
         let channel = if ports == 2 && i == servos { 17 } else { i };
@@ -280,7 +296,7 @@ fn pwm(s: usize, i: usize, marked: usize) -> u16 {
 fn run_case(case: &Case, seconds: f64) -> Outcome {
     let sim = SimBus::spawn_pty(SimConfig {
         ids: (1..=case.servos as u8).collect(),
-        baud: 115_200,
+        baud: case.baud,
         ..SimConfig::default()
     })
     .expect("simulated servos");
@@ -290,13 +306,7 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
     let dir = std::env::temp_dir().join(format!("lj9da-e2e-{}-{}", std::process::id(), ap_port));
     std::fs::create_dir_all(&dir).unwrap();
     let cfg_path = dir.join("bench.toml");
-    let text = mapping(
-        case.servos,
-        case.ports,
-        &sim.path().display().to_string(),
-        ap_port,
-        gcs_port,
-    );
+    let text = mapping(case, &sim.path().display().to_string(), ap_port, gcs_port);
     std::fs::write(&cfg_path, &text).unwrap();
     // The servo whose goals mark each port's messages: servo 1 on port 0; on port 1 the last.
     let marked = if case.ports == 2 { case.servos } else { 1 };
@@ -639,7 +649,7 @@ fn main() {
         .map(|n| n.get())
         .unwrap_or(0);
     println!(
-        "end-to-end: UDP SERVO_OUTPUT_RAW → lj9da-bridge process → simulated LJ9DA41s on ptys, 115200 bit/s"
+        "end-to-end: UDP SERVO_OUTPUT_RAW → lj9da-bridge process → simulated LJ9DA41s on ptys, 115200 bit/s (@460k: 460800)"
     );
     println!(
         "machine: {cpu}, {cores} cores; {seconds} s per case (at least 8–10 s for steps, gap, rate)"
@@ -675,6 +685,7 @@ fn main() {
         cases.push(Case {
             servos,
             rate_hz,
+            baud: 115_200,
             ports: 1,
             scenario: Scenario::Sweep(Jitter::None),
             hogs: 0,
@@ -693,6 +704,20 @@ fn main() {
             cases.push(Case {
                 servos: 4,
                 rate_hz: 50.0,
+                baud: 115_200,
+                ports: 2,
+                scenario,
+                hogs: h,
+            });
+        }
+    }
+    // The bridge's CPU at the servo's fastest rate.
+    for scenario in [Scenario::Sweep(Jitter::None), Scenario::Steps] {
+        for h in [0, hogs] {
+            cases.push(Case {
+                servos: 4,
+                rate_hz: 50.0,
+                baud: 460_800,
                 ports: 2,
                 scenario,
                 hogs: h,
