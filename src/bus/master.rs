@@ -72,6 +72,10 @@ struct Pending {
     looked: bool,
     /// A return packet with a bad sum arrived meanwhile: the servo answered, garbled.
     garbled: bool,
+    /// Bytes received, and of them echoes and garbage skipped, when the request was sent
+    /// (see [`BusMaster::reply_spent`]).
+    received_before: u64,
+    skipped_before: u64,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -218,6 +222,12 @@ impl BusMaster {
         self.counters.bytes_received += bytes.len() as u64;
         self.decoder.push(bytes);
         self.drain_decoder(now);
+        if self.reply_spent(now)
+            && let Some(p) = self.pending.as_mut()
+        {
+            p.garbled = true;
+            p.deadline = p.deadline.min(now);
+        }
         if self.pending.is_some_and(|p| p.garbled && p.deadline <= now) {
             self.expire_pending(now);
         }
@@ -270,7 +280,10 @@ impl BusMaster {
         while let Some(item) = self.decoder.poll() {
             match item {
                 Ok(Decoded::Reply(reply)) => self.on_reply(reply, now),
-                Ok(Decoded::Echo { .. }) => self.counters.echoes += 1,
+                Ok(Decoded::Echo { len }) => {
+                    self.counters.echoes += 1;
+                    self.counters.echo_bytes += len as u64;
+                }
                 Ok(Decoded::Ack) => self.counters.unexpected_replies += 1,
                 Err(DecodeError::ReplyBadChecksum {
                     id,
@@ -293,6 +306,25 @@ impl BusMaster {
                 Err(_) => self.counters.garbage_bytes += 1,
             }
         }
+    }
+
+    /// Bytes of echoes and garbage the decoder has passed over so far.
+    fn skipped_bytes(&self) -> u64 {
+        self.counters.garbage_bytes + self.counters.echo_bytes
+    }
+
+    /// Whether the servo awaited has sent as many bytes as its reply has, from its earliest
+    /// end on, and none of them made the reply: a reply garbled in its header or length (the
+    /// decoder then waits for a frame longer than any reply). The servo has stopped talking,
+    /// so the request ends as a garbled reply instead of holding the bus to its deadline.
+    /// Echoes and garbage skipped before the reply do not count as its bytes.
+    fn reply_spent(&self, now: Instant) -> bool {
+        let Some(p) = self.pending else {
+            return false;
+        };
+        let received = self.counters.bytes_received - p.received_before;
+        let skipped = self.skipped_bytes() - p.skipped_before;
+        now >= p.complete_at && received.saturating_sub(skipped) >= p.expected.wire_len() as u64
     }
 
     /// A whole return packet with a bad sum came in. When it is the reply awaited (its servo,
@@ -697,6 +729,8 @@ impl BusMaster {
                 looked: false,
                 garbled: false,
                 deadline: complete_at + self.cfg.turnaround,
+                received_before: self.counters.bytes_received,
+                skipped_before: self.skipped_bytes(),
             });
         }
         Transmit {

@@ -123,6 +123,8 @@ pub struct BusCounters {
     pub garbage_bytes: u64,
     /// Echoes of our own packets (adapters that hear themselves), skipped.
     pub echoes: u64,
+    /// The bytes of those echoes.
+    pub echo_bytes: u64,
     /// Valid replies nobody was waiting for (wrong ID, wrong registers, too late).
     pub unexpected_replies: u64,
     /// Goals handed to `set_goal` for servos of this bus.

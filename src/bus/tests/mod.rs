@@ -1214,6 +1214,39 @@ fn a_corrupted_reply_is_counted_and_times_out() {
 }
 
 #[test]
+fn a_reply_garbled_in_its_length_frees_the_bus_once_as_many_bytes_as_a_reply_came() {
+    let mut rig = Rig::with_ids(&[1]);
+    let t0 = rig.t0;
+    let _ = rig.m.poll_transmit(t0).unwrap();
+    let mut reply = ReturnPacket {
+        id: 1,
+        flags: ReplyFlags(0),
+        address: 0,
+        data: rig.servo(1).regs()[..30].to_vec(),
+    }
+    .to_bytes();
+    // Length 30 read as 31: the decoder waits for one byte more than the servo sends.
+    reply[5] = 31;
+    let complete_at = rig.m.reply_complete_at().unwrap();
+    let (a, b) = reply.split_at(reply.len() - 1);
+    rig.m.handle_input(a, complete_at);
+    assert!(
+        rig.m.reply_pending(),
+        "a byte of the reply is still to come"
+    );
+    rig.m.handle_input(b, complete_at);
+    assert!(
+        !rig.m.reply_pending(),
+        "the servo has sent a whole reply's bytes"
+    );
+    assert_eq!(rig.m.counters().timeouts, 1);
+    assert!(
+        rig.m.poll_transmit(complete_at).is_some(),
+        "the next request"
+    );
+}
+
+#[test]
 fn a_garbled_reply_from_another_servo_or_of_another_length_keeps_the_request_waiting() {
     let mut rig = Rig::with_ids(&[1, 2]);
     let t0 = rig.t0;
