@@ -425,13 +425,16 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
                     }
                 }
                 if let HostPacket::Short(short) = &p.packet {
-                    if let ShortForm::Request {
-                        address: 0x2A,
-                        length,
-                        ..
-                    } = short.form()
-                        && length >= 8
-                    {
+                    // Registers 42–49 read by address, or 42–59 by the reply code 07h.
+                    let reads_position_and_current = match short.form() {
+                        ShortForm::Request {
+                            address,
+                            length,
+                            reply_code,
+                        } => (address == 0x2A && length >= 8) || reply_code == 0x07,
+                        _ => false,
+                    };
+                    if reads_position_and_current {
                         polls += 1;
                     }
                     if short.id != 0xFF {
