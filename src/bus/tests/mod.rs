@@ -1184,20 +1184,29 @@ fn echoes_and_garbage_on_the_line_are_skipped() {
     assert!(c.garbage_bytes >= 8 * (c.telemetry_replies), "{c:?}");
 }
 
+/// The bytes of servo `id`'s reply to a read of `length` registers from register 0 (the
+/// identity read is 30), with its sum spoiled when `garbled`.
+fn registers_reply(id: u8, length: usize, garbled: bool) -> Vec<u8> {
+    let mut reply = ReturnPacket {
+        id,
+        flags: ReplyFlags(0),
+        address: 0,
+        data: vec![0; length],
+    }
+    .to_bytes();
+    if garbled {
+        let last = reply.len() - 1;
+        reply[last] ^= 0x55;
+    }
+    reply
+}
+
 #[test]
 fn a_corrupted_reply_is_counted_and_times_out() {
     let mut rig = Rig::with_ids(&[1]);
     let t0 = rig.t0;
     let _ = rig.m.poll_transmit(t0).unwrap();
-    let mut reply = ReturnPacket {
-        id: 1,
-        flags: ReplyFlags(0),
-        address: 0,
-        data: rig.servo(1).regs()[..30].to_vec(),
-    }
-    .to_bytes();
-    let last = reply.len() - 1;
-    reply[last] ^= 0x55;
+    let reply = registers_reply(1, 30, true);
     // Its first half leaves the request waiting; the whole garbled reply ends it at once:
     // the servo has stopped talking, so the bus is free as after a clean reply.
     let (a, b) = reply.split_at(reply.len() / 2);
@@ -1218,13 +1227,7 @@ fn a_reply_garbled_in_its_length_frees_the_bus_once_as_many_bytes_as_a_reply_cam
     let mut rig = Rig::with_ids(&[1]);
     let t0 = rig.t0;
     let _ = rig.m.poll_transmit(t0).unwrap();
-    let mut reply = ReturnPacket {
-        id: 1,
-        flags: ReplyFlags(0),
-        address: 0,
-        data: rig.servo(1).regs()[..30].to_vec(),
-    }
-    .to_bytes();
+    let mut reply = registers_reply(1, 30, false);
     // Length 30 read as 31: the decoder waits for one byte more than the servo sends.
     reply[5] = 31;
     let complete_at = rig.m.reply_complete_at().unwrap();
@@ -1251,20 +1254,10 @@ fn a_garbled_reply_from_another_servo_or_of_another_length_keeps_the_request_wai
     let mut rig = Rig::with_ids(&[1, 2]);
     let t0 = rig.t0;
     let _ = rig.m.poll_transmit(t0).unwrap();
-    let garbled = |id: u8, length: usize| {
-        let mut reply = ReturnPacket {
-            id,
-            flags: ReplyFlags(0),
-            address: 0,
-            data: vec![0; length],
-        }
-        .to_bytes();
-        let last = reply.len() - 1;
-        reply[last] ^= 0x55;
-        reply
-    };
-    rig.m.handle_input(&garbled(2, 30), t0 + ms(3));
-    rig.m.handle_input(&garbled(1, 12), t0 + ms(3));
+    rig.m
+        .handle_input(&registers_reply(2, 30, true), t0 + ms(3));
+    rig.m
+        .handle_input(&registers_reply(1, 12, true), t0 + ms(3));
     assert!(rig.m.reply_pending(), "the awaited reply may still come");
     assert_eq!(rig.m.counters().bad_sums, 2);
     let deadline = rig.m.poll_timeout().unwrap();
