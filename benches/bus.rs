@@ -109,6 +109,8 @@ struct Row {
     cpu_per_tx_us: f64,
     /// The bus thread's CPU time, % of one core.
     cpu_percent: f64,
+    /// The bus thread's wake-ups (voluntary context switches) per transaction.
+    wakeups_per_tx: f64,
     /// Busy goals over the bound while the bus thread was woken late.
     over_bus_late: u64,
     /// Busy goals over the bound while the simulator handed bytes over late (and the bus thread
@@ -210,6 +212,7 @@ fn main() {
     // `BUS_BENCH_FILTER=115200` runs only the rows whose label contains it.
     let filter = std::env::var("BUS_BENCH_FILTER").unwrap_or_default();
     let load_before = load_average();
+    let wake_cost = sleep_wake_cost();
     // A first run, not reported: the first bus of a process pays for page faults and cold caches.
     let _ = runtime.block_on(run(Scenario {
         baud: BaudRate::B115200,
@@ -228,7 +231,35 @@ fn main() {
             Err(e) => eprintln!("scenario failed: {e}"),
         }
     }
-    print_table(&rows, &load_before, &load_average());
+    print_table(&rows, &load_before, &load_average(), wake_cost);
+}
+
+/// The CPU time a thread is charged for one short sleep and its wake-up on this machine (the
+/// mean over 400 sleeps of 1 ms, `getrusage(RUSAGE_THREAD)`): a read costs the bus thread at
+/// least one such wake-up (for its reply), so this is the floor of its CPU per transaction.
+fn sleep_wake_cost() -> Option<Duration> {
+    const SLEEPS: u32 = 400;
+    std::thread::spawn(|| {
+        let cpu = || {
+            // SAFETY: `usage` is a valid rusage for getrusage to fill; RUSAGE_THREAD is the caller.
+            let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+            (unsafe { libc::getrusage(libc::RUSAGE_THREAD, &mut usage) } == 0).then(|| {
+                let time = |t: libc::timeval| {
+                    Duration::from_secs(u64::try_from(t.tv_sec).unwrap_or(0))
+                        + Duration::from_micros(u64::try_from(t.tv_usec).unwrap_or(0))
+                };
+                time(usage.ru_utime) + time(usage.ru_stime)
+            })
+        };
+        let before = cpu()?;
+        for _ in 0..SLEEPS {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        Some(cpu()?.saturating_sub(before) / SLEEPS)
+    })
+    .join()
+    .ok()
+    .flatten()
 }
 
 /// CPU time stolen by the hypervisor so far, all CPUs, in ms (`steal` of `/proc/stat`, in
@@ -576,9 +607,10 @@ async fn run(s: Scenario) -> Result<Row, String> {
     let transactions = |c: &lj9da_bridge::bus::BusCounters| {
         c.polls + c.motion_polls + c.position_polls + c.other_requests + c.command_frames
     };
-    let cpu = status1.thread_cpu.saturating_sub(status0.thread_cpu);
-    row.cpu_per_tx_us =
-        cpu.as_secs_f64() * 1e6 / (transactions(&c1) - transactions(&c0)).max(1) as f64;
+    let cpu = status1.thread.cpu.saturating_sub(status0.thread.cpu);
+    let txs = (transactions(&c1) - transactions(&c0)).max(1) as f64;
+    row.cpu_per_tx_us = cpu.as_secs_f64() * 1e6 / txs;
+    row.wakeups_per_tx = status1.thread.wakeups.saturating_sub(status0.thread.wakeups) as f64 / txs;
     row.cpu_percent = cpu.as_secs_f64() * 100.0 / (t1 - t0).as_secs_f64();
     row.stolen_ms = steal0.zip(steal1).map(|(a, b)| b.saturating_sub(a));
     Ok(row)
@@ -782,7 +814,7 @@ fn fmt_latency(v: Option<f64>) -> String {
     }
 }
 
-fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
+fn print_table(rows: &[Row], load_before: &str, load_after: &str, wake_cost: Option<Duration>) {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
         .and_then(|s| {
@@ -802,18 +834,22 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
         load_before,
         load_after
     );
+    println!(
+        "a thread's 1 ms sleep and wake-up costs it {} µs of CPU here (the floor of a read's CPU/tx)",
+        wake_cost.map_or("?".into(), |d| format!("{:.1}", d.as_secs_f64() * 1e6))
+    );
     println!();
     let header = [
         "frames/s", "polls/s", "pos/s", "telem Hz", "wire %", "limit %", "→goal", "gap", "p50",
         "p99", "max", "idle p50", "busy exc", "busy exc", "on wire", "t/o", "coll", "sim", "bus",
-        "stolen", "CPU/tx", "CPU",
+        "stolen", "CPU/tx", "wake", "CPU",
     ];
     let header2 = [
         "", "", "", "/servo", "", "", "idle %", "p50", "", "", "", "", "p99", "max", "/set", "",
-        "", "late", "late", "", "µs", "%",
+        "", "late", "late", "", "µs", "/tx", "%",
     ];
     let widths = [
-        8, 7, 6, 9, 6, 7, 6, 5, 7, 7, 7, 8, 8, 8, 11, 4, 4, 4, 4, 6, 6, 5,
+        8, 7, 6, 9, 6, 7, 6, 5, 7, 7, 7, 8, 8, 8, 11, 4, 4, 4, 4, 6, 6, 5, 5,
     ];
     let line = |label: &str, cells: &[String]| {
         let mut out = format!("{label:<27}");
@@ -857,6 +893,7 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
                 r.late_wakeups.to_string(),
                 r.stolen_ms.map_or("?".into(), |ms| ms.to_string()),
                 format!("{:.1}", r.cpu_per_tx_us),
+                format!("{:.2}", r.wakeups_per_tx),
                 format!("{:.2}", r.cpu_percent),
             ],
         );
@@ -902,7 +939,10 @@ fn print_table(rows: &[Row], load_before: &str, load_after: &str) {
         "CPU/tx: the bus thread's CPU time (getrusage RUSAGE_THREAD, read by the thread when it"
     );
     println!(
-        "publishes its status) per transaction (request and reply, or long packet); CPU: of one core."
+        "publishes its status) per transaction (request and reply, or long packet); wake/tx: its"
+    );
+    println!(
+        "voluntary context switches (sleeps ended by a timer, a byte or a goal) per transaction; CPU: of one core."
     );
     println!();
     println!(

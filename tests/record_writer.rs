@@ -396,7 +396,7 @@ fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
         counters: BusCounters::default(),
         at: t0 + Duration::from_millis(30),
         telemetry_asked_hz: None,
-        thread_cpu: Duration::ZERO,
+        thread: Default::default(),
     };
     let full = sample(100);
     let mut moved = full;
@@ -493,7 +493,7 @@ fn reply_counts_are_recorded_when_they_change_at_most_once_a_second() {
         counters: BusCounters::default(),
         at: t0 + Duration::from_millis(ms),
         telemetry_asked_hz: None,
-        thread_cpu: Duration::ZERO,
+        thread: Default::default(),
     };
     // Nothing asked yet: no record. Then the first counts; changes within a second wait; the
     // same counts a second later are not written again.

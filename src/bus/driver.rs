@@ -30,7 +30,7 @@ use super::config::BusConfig;
 use super::event::BusEvent;
 use super::goal::{Goal, ShutdownForce};
 use super::master::BusMaster;
-use super::status::BusStatus;
+use super::status::{BusStatus, ThreadUsage};
 use crate::protocol::{BaudRate, ServoId};
 use nix::fcntl::{FcntlArg, OFlag, fcntl};
 use nix::poll::{PollFd, PollFlags, ppoll};
@@ -705,7 +705,7 @@ impl Driver {
             })
         };
         if let Some(mut status) = status {
-            status.thread_cpu = thread_cpu_time();
+            status.thread = thread_usage();
             self.published_at = now;
             (self.observe)(&status);
             self.status.send_replace(status);
@@ -825,18 +825,22 @@ fn publish_spacing(cfg: &BusConfig) -> Duration {
     (cfg.telemetry_min_interval / 2).min(Duration::from_millis(5))
 }
 
-/// The CPU time the calling thread has used (`getrusage(RUSAGE_THREAD)`; zero where refused).
-fn thread_cpu_time() -> Duration {
+/// What the calling thread has used (`getrusage(RUSAGE_THREAD)`; zero where refused).
+fn thread_usage() -> ThreadUsage {
     use nix::libc;
     // SAFETY: `usage` is a valid rusage for getrusage to fill; RUSAGE_THREAD is the caller.
     let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
     if unsafe { libc::getrusage(libc::RUSAGE_THREAD, &mut usage) } != 0 {
-        return Duration::ZERO;
+        return ThreadUsage::default();
     }
     let time = |t: libc::timeval| {
-        Duration::from_secs(t.tv_sec as u64) + Duration::from_micros(t.tv_usec as u64)
+        Duration::from_secs(u64::try_from(t.tv_sec).unwrap_or(0))
+            + Duration::from_micros(u64::try_from(t.tv_usec).unwrap_or(0))
     };
-    time(usage.ru_utime) + time(usage.ru_stime)
+    ThreadUsage {
+        cpu: time(usage.ru_utime) + time(usage.ru_stime),
+        wakeups: u64::try_from(usage.ru_nvcsw).unwrap_or(0),
+    }
 }
 
 /// Waits on the port for the last bytes of a reply, without the core locked. It holds its own

@@ -1030,7 +1030,7 @@ impl BusMaster {
             at: now,
             telemetry_asked_hz: (!self.cfg.telemetry_min_interval.is_zero())
                 .then(|| 1.0 / self.cfg.telemetry_min_interval.as_secs_f32()),
-            thread_cpu: Duration::ZERO,
+            thread: Default::default(),
         }
     }
 

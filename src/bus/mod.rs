@@ -94,5 +94,7 @@ pub use driver::{BusHandle, StatusObserver, spawn_bus, spawn_bus_observed};
 pub use event::BusEvent;
 pub use goal::{Goal, ShutdownForce};
 pub use master::BusMaster;
-pub use status::{BusCounters, BusStatus, ForceState, Health, ServoIdentity, ServoStatus};
+pub use status::{
+    BusCounters, BusStatus, ForceState, Health, ServoIdentity, ServoStatus, ThreadUsage,
+};
 pub use transmit::{Transmit, TxKind};

@@ -163,8 +163,18 @@ pub struct BusStatus {
     /// Position-and-current reads asked per servo per second (`None`: as often as the bus
     /// allows, `telemetry_hz = "max"`).
     pub telemetry_asked_hz: Option<f32>,
-    /// CPU time the bus thread has used so far (zero for a bare bus master).
-    pub thread_cpu: std::time::Duration,
+    /// What the bus thread has used so far (zero for a bare bus master).
+    pub thread: ThreadUsage,
+}
+
+/// The bus thread's use of the computer since it started (`getrusage(RUSAGE_THREAD)`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ThreadUsage {
+    /// CPU time, user and system.
+    pub cpu: std::time::Duration,
+    /// Times it went to sleep and was woken (voluntary context switches): on a virtual
+    /// machine, each costs the thread more CPU than the work of a transaction.
+    pub wakeups: u64,
 }
 
 impl BusStatus {

@@ -745,7 +745,7 @@ mod tests {
             counters,
             at,
             telemetry_asked_hz: Some(50.0),
-            thread_cpu: Duration::ZERO,
+            thread: Default::default(),
         }
     }
 
