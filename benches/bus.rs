@@ -610,7 +610,11 @@ async fn run(s: Scenario) -> Result<Row, String> {
     let cpu = status1.thread.cpu.saturating_sub(status0.thread.cpu);
     let txs = (transactions(&c1) - transactions(&c0)).max(1) as f64;
     row.cpu_per_tx_us = cpu.as_secs_f64() * 1e6 / txs;
-    row.wakeups_per_tx = status1.thread.wakeups.saturating_sub(status0.thread.wakeups) as f64 / txs;
+    row.wakeups_per_tx = status1
+        .thread
+        .wakeups
+        .saturating_sub(status0.thread.wakeups) as f64
+        / txs;
     row.cpu_percent = cpu.as_secs_f64() * 100.0 / (t1 - t0).as_secs_f64();
     row.stolen_ms = steal0.zip(steal1).map(|(a, b)| b.saturating_sub(a));
     Ok(row)

@@ -31,7 +31,9 @@
 //! - the telemetry rate per servo seen by a ground station (`<label>_pos` NAMED_VALUE_FLOAT);
 //! - the bridge process's CPU time per second of run, and its peak resident memory ("not
 //!   measured" where /proc cannot be read);
-//! - talk-overs (a packet written while a servo replied) and STATUSTEXTs of severity WARNING or
+//! - talk-overs (a packet written while a servo replied; "(N sim)": of them, N where the
+//!   simulator read a packet together with a request before it, i.e. its thread was not run for
+//!   the reply allowance while the bridge timed the first out) and STATUSTEXTs of severity WARNING or
 //!   worse heard by the ground station (none is true of healthy simulated servos).
 //!
 //! Every message gives servo 1 a goal that no other message in the window has, so each message
@@ -174,6 +176,8 @@ struct Outcome {
     cpu_percent: Option<f64>,
     peak_rss_kib: Option<u64>,
     collisions: usize,
+    /// Of them, those the simulator's starved thread caused (see `starved` in `run_case`).
+    collisions_sim_starved: usize,
     alarms: Vec<String>,
 }
 
@@ -408,13 +412,55 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
     // requests on the wire: (first byte, end of the reply or of the request); reads of
     // position and current; servo 1's good replies.
     let mut packets: [Vec<(Instant, i16)>; 2] = [Vec::new(), Vec::new()];
-    let mut collisions = 0;
+    let mut collisions: Vec<Instant> = Vec::new();
+    // Packets the simulator read in one go with a request before them: the bridge wrote the
+    // later one only after the request had timed out, so the simulator's thread was not run for at
+    // least the reply allowance (the bridge's thread, in the real-time class, was). The
+    // simulator then puts both on its modelled line at once, and a reply to the first collides
+    // with the second: a talk-over of the simulator's, not of the bridge's.
+    let mut starved: Vec<(Instant, Instant)> = Vec::new();
+    let mut last_request_read: Option<Instant> = None;
     let mut requests: Vec<(Instant, Instant)> = Vec::new();
     let mut open_request: Option<(Instant, Instant, u8)> = None;
     let (mut polls, mut servo1_ok) = (0usize, 0usize);
+    // `E2E_TRACE=1`: the line's last events before each talk-over, µs before it.
+    let trace = std::env::var_os("E2E_TRACE").is_some();
+    let mut recent: std::collections::VecDeque<BusEvent> = std::collections::VecDeque::new();
     while let Ok(e) = events.try_recv() {
+        if trace {
+            if let BusEvent::Collision { at, id } = &e {
+                eprintln!("talk-over with servo {id}; the line before it (µs before):");
+                for before in &recent {
+                    let when = match before {
+                        BusEvent::Packet(p) => Some(p.first_byte_at),
+                        BusEvent::Reply(r) => Some(r.first_byte_at),
+                        BusEvent::HandedLate { at, .. } => Some(*at),
+                        _ => None,
+                    };
+                    let ago = when.map_or(f64::NAN, |t| {
+                        at.saturating_duration_since(t).as_secs_f64() * 1e6
+                    });
+                    eprintln!("  {ago:>8.0}  {before:?}");
+                }
+            }
+            recent.push_back(e.clone());
+            if recent.len() > 8 {
+                recent.pop_front();
+            }
+        }
         match e {
             BusEvent::Packet(p) => {
+                if last_request_read == Some(p.first_byte_at) {
+                    match starved.last_mut() {
+                        Some((at, end)) if *at == p.first_byte_at => *end = p.completed_at,
+                        _ => starved.push((p.first_byte_at, p.completed_at)),
+                    }
+                }
+                let expects_reply =
+                    matches!(&p.packet, HostPacket::Short(short) if short.id != 0xFF);
+                if expects_reply || last_request_read != Some(p.first_byte_at) {
+                    last_request_read = expects_reply.then_some(p.first_byte_at);
+                }
                 if let Some((start, end, _)) = open_request.take() {
                     requests.push((start, end.min(p.first_byte_at)));
                 }
@@ -453,7 +499,7 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
                     servo1_ok += 1;
                 }
             }
-            BusEvent::Collision { .. } => collisions += 1,
+            BusEvent::Collision { at, .. } => collisions.push(at),
             _ => {}
         }
     }
@@ -526,7 +572,16 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
         telemetry_hz,
         cpu_percent: cpu0.zip(cpu1).map(|(a, b)| (b - a) / run_time * 100.0),
         peak_rss_kib: rss,
-        collisions,
+        collisions: collisions.len(),
+        collisions_sim_starved: collisions
+            .iter()
+            .filter(|at| {
+                // Within the batch's modelled span, or the reply allowance after it.
+                starved
+                    .iter()
+                    .any(|(from, to)| **at >= *from && **at <= *to + Duration::from_millis(20))
+            })
+            .count(),
         alarms,
     }
 }
@@ -659,7 +714,7 @@ fn main() {
     );
     println!("bridge: {}", bridge_exe().to_string_lossy());
     println!(
-        "{:<16} {:>4} {:>5} {:>7} {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>7} {:>7} {:>6} {:>6} {:>6} {:>6} {:>8} {:>4} {:>6}",
+        "{:<16} {:>4} {:>5} {:>7} {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>7} {:>7} {:>6} {:>6} {:>6} {:>6} {:>4} {:>11} {:>6}",
         "case",
         "hogs",
         "sent",
@@ -761,7 +816,7 @@ fn main() {
             )
         };
         println!(
-            "{:<16} {:>4} {:>5} {:>6.1}% {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>6.1}% {:>7.1} {:>6.1} {:>6.1} {:>6} {:>6} {:>8} {:>4} {:>6}",
+            "{:<16} {:>4} {:>5} {:>6.1}% {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>6.1}% {:>7.1} {:>6.1} {:>6.1} {:>6} {:>6} {:>4} {:>11} {:>6}",
             format!("{} {}", case.name(), case.scenario.name()),
             case.hogs,
             o.sent,
@@ -784,7 +839,11 @@ fn main() {
             o.peak_rss_kib
                 .map_or("n/m".to_string(), |r| format!("{:.1}", r as f64 / 1024.0)),
             "",
-            o.collisions,
+            if o.collisions_sim_starved > 0 {
+                format!("{} ({} sim)", o.collisions, o.collisions_sim_starved)
+            } else {
+                o.collisions.to_string()
+            },
             o.alarms.len(),
         );
         for a in &o.alarms {
