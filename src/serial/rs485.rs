@@ -289,6 +289,19 @@ pub fn configure(bus: &str, port: &Path, mode: Option<Rs485Mode>) {
     }
 }
 
+/// [`configure`] bus `bus` of a mapping file on `port` (its own, or the one a simulation put
+/// in its place: `simulated`, a pseudo-terminal with no RS485 mode to set), and say once what
+/// the mode asks of the servos.
+pub fn configure_bus(bus: &crate::config::BusSection, port: &Path, simulated: bool) {
+    let mode = bus.rs485.filter(|_| !simulated);
+    if mode.is_some()
+        && let Some(w) = crate::config::warnings::rs485_hold_after_send(bus)
+    {
+        tracing::warn!("{}", w.trim_start_matches("warning: "));
+    }
+    configure(&bus.name, port, mode);
+}
+
 /// The RS485 mode asked for `port`, if any.
 pub fn configured_mode(port: &Path) -> Option<Rs485Mode> {
     configured().iter().find(|c| c.port == port).map(|c| c.mode)
@@ -380,6 +393,8 @@ mod tests {
             target_arch = "arm"
         )
     ))]
+    // `Ioctl` is `c_ulong` with glibc and `c_int` with musl: the cast is needed on one of them.
+    #[allow(clippy::unnecessary_cast)]
     #[test]
     fn the_ioctl_numbers_are_the_generic_ones_on_the_usual_architectures() {
         assert_eq!(libc::TIOCGRS485 as u64, 0x542E);
