@@ -246,17 +246,20 @@ pub fn set(fd: BorrowedFd<'_>, mode: Rs485Mode) -> Result<Granted, Rs485Error> {
     })
 }
 
-/// What to check when `port` refuses RS485 mode, for the operator.
-pub fn refusal_advice(port: &Path) -> String {
+/// What to check when `port` refuses RS485 mode, for the operator; `request` is where the
+/// mode was asked for (see [`IN_MAPPING`]).
+pub fn refusal_advice(port: &Path, request: &str) -> String {
     format!(
         "check that {} is a UART whose RS485 mode is enabled (on a Raspberry Pi: the board's \
          device-tree overlay, e.g. `linux,rs485-enabled-at-boot-time` and `rts-gpios` on the \
          UART node, and `dtoverlay=` in config.txt); a USB adapter or a transceiver with \
-         automatic direction control switches by itself: then remove `rs485` from this bus in \
-         the mapping file",
+         automatic direction control switches by itself: then remove {request}",
         port.display()
     )
 }
+
+/// Where a bus asks for RS485 mode, for [`refusal_advice`].
+pub const IN_MAPPING: &str = "`rs485` from this bus in the mapping file";
 
 /// One bus's RS485 request, kept until its port is opened.
 #[derive(Debug)]
@@ -350,7 +353,7 @@ pub fn apply_configured(port: &Path, fd: BorrowedFd<'_>) -> Result<(), String> {
                     "bus \"{}\" not started: {} {e}; {}",
                     entry.bus,
                     port.display(),
-                    refusal_advice(port)
+                    refusal_advice(port, IN_MAPPING)
                 );
             }
             Err(format!("RS485 mode not set: {e}"))
@@ -503,7 +506,7 @@ mod tests {
 
     #[test]
     fn the_advice_names_the_port_the_overlay_and_the_way_out() {
-        let advice = refusal_advice(Path::new("/dev/ttyAMA0"));
+        let advice = refusal_advice(Path::new("/dev/ttyAMA0"), IN_MAPPING);
         assert!(advice.contains("/dev/ttyAMA0"));
         assert!(advice.contains("linux,rs485-enabled-at-boot-time"));
         assert!(advice.contains("automatic direction"));
