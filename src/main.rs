@@ -207,11 +207,15 @@ fn main() -> ExitCode {
         } => {
             use lj9da_bridge::serial::ports;
             let found = ports::list(&sysfs_root, &dev_root);
-            if json {
-                print!("{}", ports::render_json(&found));
+            let text = if json {
+                ports::render_json(&found)
             } else {
-                print!("{}", ports::render(&found));
-            }
+                ports::render(&found)
+            };
+            // A closed pipe (`| head`) is no error worth a panic.
+            let mut out = std::io::stdout().lock();
+            let _ = std::io::Write::write_all(&mut out, text.as_bytes());
+            let _ = std::io::Write::flush(&mut out);
             ExitCode::SUCCESS
         }
         Command::Record { cmd } => lj9da_bridge::record::cli::run(cmd),

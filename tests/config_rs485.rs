@@ -181,3 +181,16 @@ fn holding_the_line_after_sending_is_warned_about_with_the_return_delay_it_needs
         c.warnings()
     );
 }
+
+#[test]
+fn the_example_mappings_commented_rs485_line_is_valid() {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/mappings/ardupilot-plane.toml");
+    let text = std::fs::read_to_string(path).unwrap();
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("# rs485 = {"))
+        .expect("the commented rs485 line");
+    let on_hat = text.replacen(line, &line[2..], 1);
+    let c = Config::parse(&on_hat, path).unwrap();
+    assert_eq!(c.buses[0].rs485, Some(Rs485Mode::default()));
+}
