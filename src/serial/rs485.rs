@@ -350,7 +350,7 @@ pub fn apply_configured(port: &Path, fd: BorrowedFd<'_>) -> Result<(), String> {
                 tracing::error!(
                     bus = %entry.bus,
                     port = %port.display(),
-                    "bus \"{}\" not started: {} {e}; {}",
+                    "bus \"{}\" not started: {}: {e}; {}",
                     entry.bus,
                     port.display(),
                     refusal_advice(port, IN_MAPPING)
