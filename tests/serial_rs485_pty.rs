@@ -141,13 +141,24 @@ channel = 4
     let mut seen = Vec::new();
     let mut refusal = None;
     let mut tail_open = false;
+    let mut told_ground = false;
     let deadline = std::time::Instant::now() + PATIENCE;
-    while refusal.is_none() || !tail_open {
+    // The other bus's servo found silent comes some 300 ms after the ports were opened: by
+    // then any second report of the wing's port would have been logged too.
+    let mut tail_servo_lost = false;
+    while refusal.is_none() || !tail_open || !told_ground || !tail_servo_lost {
         let left = deadline.saturating_duration_since(std::time::Instant::now());
         match rx.recv_timeout(left) {
             Ok(line) => {
                 if line.contains("not started") {
                     refusal = Some(line.clone());
+                }
+                if line.contains("servo 2 lost") {
+                    tail_servo_lost = true;
+                }
+                // The STATUSTEXT to the ground station, as the MAVLink side logs it.
+                if line.contains("LJ9DA bus wing: port lost") {
+                    told_ground = true;
                 }
                 if line.contains("serial port open")
                     && line.contains(&*plain_path.to_string_lossy())
@@ -175,6 +186,8 @@ channel = 4
         assert!(refusal.contains(part), "{part:?} not in {refusal}");
     }
     assert!(tail_open, "the other bus did not open its port:\n{log}");
-    // Said once, however often the port is tried again.
+    // Said once, however often the port is tried again; told to the ground station once,
+    // whether the bus gave up on the port before the MAVLink side listened or after.
     assert_eq!(log.matches("not started").count(), 1, "{log}");
+    assert_eq!(log.matches("LJ9DA bus wing: port lost").count(), 1, "{log}");
 }
