@@ -83,6 +83,9 @@ enum Command {
         /// Read device names here instead of /dev (for tests).
         #[arg(long, hide = true, default_value = "/dev")]
         dev_root: PathBuf,
+        /// Read processes here instead of /proc (for tests).
+        #[arg(long, hide = true, default_value = "/proc")]
+        proc_root: PathBuf,
     },
     /// Commissioning: scan, info, set, move, force, factory-reset, monitor.
     #[command(flatten)]
@@ -204,9 +207,10 @@ fn main() -> ExitCode {
             json,
             sysfs_root,
             dev_root,
+            proc_root,
         } => {
             use lj9da_bridge::serial::ports;
-            let found = ports::list(&sysfs_root, &dev_root);
+            let found = ports::list_in(&sysfs_root, &dev_root, &proc_root);
             let text = if json {
                 ports::render_json(&found)
             } else {

@@ -5,7 +5,7 @@
 
 mod tempdir;
 
-use lj9da_bridge::serial::ports::{PortInfo, UsbInfo, list, render, render_json};
+use lj9da_bridge::serial::ports::{Opener, PortInfo, UsbInfo, list, list_in, render, render_json};
 use std::fs;
 use std::os::unix::fs::symlink;
 use std::path::{Path, PathBuf};
@@ -368,4 +368,34 @@ fn the_binary_lists_the_same_ports() {
         .collect();
     assert_eq!(devices.len(), 5, "{devices:?}");
     assert!(devices[0].ends_with("/dev/ttyACM0"), "{devices:?}");
+}
+
+#[test]
+fn a_port_some_process_has_open_says_which() {
+    let tree = fake();
+    let proc = tree.dir.path().join("proc");
+    let usb0 = fs::canonicalize(tree.dev().join("ttyUSB0")).unwrap();
+    // pid 4242, the bridge run as a service, has the FTDI port open twice; pid 77 has an
+    // unrelated file; `self` and other non-pid entries are not processes.
+    write(&proc.join("4242/comm"), "lj9da-bridge\n");
+    link(usb0.to_str().unwrap(), &proc.join("4242/fd/5"));
+    link(usb0.to_str().unwrap(), &proc.join("4242/fd/6"));
+    write(&proc.join("77/comm"), "bash\n");
+    link("/dev/null", &proc.join("77/fd/0"));
+    link("socket:[1234]", &proc.join("77/fd/1"));
+    fs::create_dir_all(proc.join("self/fd")).unwrap();
+    let ports = list_in(&tree.sys(), &tree.dev(), &proc);
+    assert_eq!(
+        find(&ports, "ttyUSB0").open_by,
+        [Opener {
+            pid: 4242,
+            command: "lj9da-bridge".into()
+        }]
+    );
+    assert!(find(&ports, "ttyUSB1").open_by.is_empty());
+    let text = render(&ports);
+    assert!(
+        text.contains("in use   by lj9da-bridge (pid 4242): stop it before using the port"),
+        "{text}"
+    );
 }

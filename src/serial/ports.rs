@@ -10,8 +10,9 @@
 //! `/dev/serial/by-path/…`, and aliases such as the Raspberry Pi's `/dev/serial0`), its
 //! driver, the USB device it belongs to (vendor and product IDs, manufacturer, product, serial
 //! number), an FTDI-style latency timer (read with [`crate::deploy::check_latency_with`],
-//! never changed here), and whether this user may open it (`access(2)`: nothing is opened, so
-//! no adapter sees its modem lines move).
+//! never changed here), whether this user may open it (`access(2)`: nothing is opened, so no
+//! adapter sees its modem lines move), and which processes have it open (`/proc/<pid>/fd`, as
+//! far as this user may look: all of them for root).
 
 use crate::deploy::{LatencyCheck, ReportOnly, check_latency_with};
 use serde::Serialize;
@@ -42,6 +43,16 @@ pub struct PortInfo {
     /// Whether this user may read and write the device (`false`: add the user to the group
     /// that owns it, usually `dialout`).
     pub accessible: bool,
+    /// Processes that have it open, among those this user may look into (all, for root).
+    pub open_by: Vec<Opener>,
+}
+
+/// A process that has a port open.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Opener {
+    pub pid: u32,
+    /// Its command name (`/proc/<pid>/comm`).
+    pub command: String,
 }
 
 /// What a USB device says it is.
@@ -56,8 +67,18 @@ pub struct UsbInfo {
     pub serial: Option<String>,
 }
 
-/// The serial ports under `sysfs` (`/sys`) and `dev` (`/dev`), in name order.
+/// The serial ports under `sysfs` (`/sys`) and `dev` (`/dev`), in name order, without looking
+/// for processes that have them open.
 pub fn list(sysfs: &Path, dev: &Path) -> Vec<PortInfo> {
+    list_ports(sysfs, dev, None)
+}
+
+/// [`list`], with the processes under `proc` (`/proc`) that have each port open.
+pub fn list_in(sysfs: &Path, dev: &Path, proc: &Path) -> Vec<PortInfo> {
+    list_ports(sysfs, dev, Some(proc))
+}
+
+fn list_ports(sysfs: &Path, dev: &Path, proc: Option<&Path>) -> Vec<PortInfo> {
     let class = sysfs.join("class/tty");
     let mut names: Vec<String> = fs::read_dir(&class)
         .map(|entries| {
@@ -70,11 +91,64 @@ pub fn list(sysfs: &Path, dev: &Path) -> Vec<PortInfo> {
         .unwrap_or_default();
     names.sort_by_key(|a| natural_key(a));
     let links = Links::read(dev);
+    let open_files = proc.map(open_files).unwrap_or_default();
     names
         .into_iter()
         .filter(|name| has_hardware(&class.join(name), name))
-        .map(|name| describe(sysfs, dev, &class.join(&name), &name, &links))
+        .map(|name| {
+            let mut port = describe(sysfs, dev, &class.join(&name), &name, &links);
+            if let Ok(device) = fs::canonicalize(&port.device) {
+                port.open_by = open_files
+                    .iter()
+                    .filter(|(file, _)| *file == device)
+                    .map(|(_, opener)| opener.clone())
+                    .collect();
+                port.open_by.dedup();
+            }
+            port
+        })
         .collect()
+}
+
+/// Every file that a process under `proc` has open (`/proc/<pid>/fd/*`), with the process;
+/// processes this user may not look into are skipped, and so is this one.
+fn open_files(proc: &Path) -> Vec<(PathBuf, Opener)> {
+    let me = std::process::id();
+    let Ok(entries) = fs::read_dir(proc) else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for entry in entries.filter_map(Result::ok) {
+        let Some(pid) = entry
+            .file_name()
+            .to_str()
+            .and_then(|n| n.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if pid == me {
+            continue;
+        }
+        let Ok(fds) = fs::read_dir(entry.path().join("fd")) else {
+            continue;
+        };
+        let command = read_trimmed(&entry.path().join("comm")).unwrap_or_default();
+        for fd in fds.filter_map(Result::ok) {
+            if let Ok(target) = fs::read_link(fd.path())
+                && target.is_absolute()
+            {
+                out.push((
+                    target,
+                    Opener {
+                        pid,
+                        command: command.clone(),
+                    },
+                ));
+            }
+        }
+    }
+    out.sort_by_key(|(_, o)| o.pid);
+    out
 }
 
 /// `ttyUSB0`, `ttyS12`, … but not `ttySC` alone, `tty0` or `ttyprintk`.
@@ -184,6 +258,7 @@ fn describe(sysfs: &Path, dev: &Path, tty: &Path, name: &str, links: &Links) -> 
             nix::unistd::AccessFlags::R_OK | nix::unistd::AccessFlags::W_OK,
         )
         .is_ok(),
+        open_by: Vec::new(),
         device,
     }
 }
@@ -274,6 +349,12 @@ pub fn render(ports: &[PortInfo]) -> String {
                 "  access   this user may not open it (add the user to its group, usually \
                  `dialout`, or run as its owner)\n",
             );
+        }
+        for o in &p.open_by {
+            out.push_str(&format!(
+                "  in use   by {} (pid {}): stop it before using the port\n",
+                o.command, o.pid
+            ));
         }
         out.push_str(&format!(
             "  mapping  port = \"{}\"\n",
