@@ -194,3 +194,31 @@ fn the_example_mappings_commented_rs485_line_is_valid() {
     let c = Config::parse(&on_hat, path).unwrap();
     assert_eq!(c.buses[0].rs485, Some(Rs485Mode::default()));
 }
+
+#[test]
+fn rs485_on_a_usb_adapter_is_warned_about() {
+    let text = file("rs485 = {}").replace(
+        "/dev/ttyAMA0",
+        "/dev/serial/by-id/usb-FTDI_FT232R_USB_UART_A50285BI-if00-port0",
+    );
+    let c = Config::parse(&text, ORIGIN).unwrap();
+    let warnings = c.warnings();
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("a USB adapter") && w.contains("Remove `rs485`")),
+        "{warnings:?}"
+    );
+    // Not on a UART, and not without rs485.
+    for text in [
+        file("rs485 = {}"),
+        file("").replace("/dev/ttyAMA0", "/dev/ttyUSB0"),
+    ] {
+        let c = Config::parse(&text, ORIGIN).unwrap();
+        assert!(
+            !c.warnings().iter().any(|w| w.contains("a USB adapter")),
+            "{:?}",
+            c.warnings()
+        );
+    }
+}
