@@ -16,7 +16,7 @@ use std::process::ExitCode;
     name = "lj9da-bridge",
     version,
     about = "Bridge between MAVLink autopilots (PX4, ArduPilot) and Futaba LJ9DA41 RS485 linear servos",
-    after_help = "Examples:\n  lj9da-bridge sitl                          # the whole chain in simulation, no hardware\n  lj9da-bridge check --config mappings/ardupilot-plane.toml\n  lj9da-bridge run --config /etc/lj9da-bridge/plane.toml\n\nLogs: set RUST_LOG (e.g. RUST_LOG=lj9da_bridge=debug)."
+    after_help = "Examples:\n  lj9da-bridge sitl                          # the whole chain in simulation, no hardware\n  lj9da-bridge ports                         # which serial port is which\n  lj9da-bridge check --config mappings/ardupilot-plane.toml\n  lj9da-bridge run --config /etc/lj9da-bridge/plane.toml\n\nLogs: set RUST_LOG (e.g. RUST_LOG=lj9da_bridge=debug)."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -67,6 +67,25 @@ enum Command {
     Deploy {
         #[command(subcommand)]
         cmd: DeployCommand,
+    },
+    /// List the serial ports and what each one is: USB vendor and product, serial number,
+    /// driver, FTDI latency timer, and the /dev/serial/by-id name to put in a mapping file.
+    #[command(
+        after_help = "Examples:\n  lj9da-bridge ports\n  lj9da-bridge ports --json\n\nNothing is opened or changed: the ports are read from sysfs and /dev."
+    )]
+    Ports {
+        /// Print JSON for scripts instead of text.
+        #[arg(long)]
+        json: bool,
+        /// Read sysfs here instead of /sys (for tests).
+        #[arg(long, hide = true, default_value = "/sys")]
+        sysfs_root: PathBuf,
+        /// Read device names here instead of /dev (for tests).
+        #[arg(long, hide = true, default_value = "/dev")]
+        dev_root: PathBuf,
+        /// Read processes here instead of /proc (for tests).
+        #[arg(long, hide = true, default_value = "/proc")]
+        proc_root: PathBuf,
     },
     /// Commissioning: scan, info, set, move, force, factory-reset, monitor.
     #[command(flatten)]
@@ -183,6 +202,25 @@ fn main() -> ExitCode {
                     ExitCode::FAILURE
                 }
             }
+        }
+        Command::Ports {
+            json,
+            sysfs_root,
+            dev_root,
+            proc_root,
+        } => {
+            use lj9da_bridge::serial::ports;
+            let found = ports::list_in(&sysfs_root, &dev_root, &proc_root);
+            let text = if json {
+                ports::render_json(&found)
+            } else {
+                ports::render(&found)
+            };
+            // A closed pipe (`| head`) is no error worth a panic.
+            let mut out = std::io::stdout().lock();
+            let _ = std::io::Write::write_all(&mut out, text.as_bytes());
+            let _ = std::io::Write::flush(&mut out);
+            ExitCode::SUCCESS
         }
         Command::Record { cmd } => lj9da_bridge::record::cli::run(cmd),
         Command::Deploy { cmd } => lj9da_bridge::deploy::run(cmd),

@@ -157,7 +157,7 @@ fn check_prints_the_connection_buses_and_each_servo_resolved() {
         .find(|l| l.starts_with("wing "))
         .expect("a bus row");
     assert!(
-        bus.contains("/dev/ttyUSB0") && bus.contains("115200 bit/s"),
+        bus.contains("/dev/serial/by-id/usb-FTDI_") && bus.contains("115200 bit/s"),
         "{bus}"
     );
     let row = |name: &str| {

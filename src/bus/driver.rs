@@ -646,6 +646,7 @@ fn open_port(path: &Path, baud: BaudRate) -> Result<(File, ReplyWaiter), String>
     // SAFETY: `into_raw_fd` hands over a valid, open descriptor that nothing else owns or
     // closes any more; the `File` becomes its only owner.
     let port = unsafe { File::from_raw_fd(native.into_raw_fd()) };
+    crate::serial::rs485::apply_configured(path, port.as_fd())?;
     let flags = fcntl(port.as_raw_fd(), FcntlArg::F_GETFL).map_err(|e| e.to_string())?;
     let flags = OFlag::from_bits_retain(flags) | OFlag::O_NONBLOCK;
     fcntl(port.as_raw_fd(), FcntlArg::F_SETFL(flags)).map_err(|e| e.to_string())?;

@@ -13,6 +13,7 @@ use super::scan::{ScanOptions, scan};
 use super::set::{SetOptions, set};
 use super::settings::Setting;
 use crate::protocol::{BaudRate, ForceMode, MmCenti, Ms10, ServoId};
+use crate::serial::rs485::{MAX_DELAY_MS, Rs485Mode};
 use crate::simulation::live::{TextScreen, quit_key};
 use clap::{Args, Subcommand, ValueEnum};
 use std::io::{BufRead, IsTerminal, Write};
@@ -40,6 +41,47 @@ pub struct PortArgs {
     /// the margin of each ping, default 12). Raise it for adapters with a high latency timer.
     #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..=10_000))]
     pub timeout_ms: Option<u64>,
+    /// Put a UART in the kernel's RS485 mode (its transceiver's driver enable on RTS), as a
+    /// bus's `rs485` does in a mapping file: `--rs485` alone is RTS high while sending;
+    /// `--rs485=after-send,before=1,after=0,rx-during-tx` spells out the rest (delays in ms,
+    /// 0–100). Not for USB adapters, which switch by themselves.
+    #[arg(
+        long,
+        value_name = "MODE",
+        num_args = 0..=1,
+        require_equals = true,
+        default_missing_value = "on-send",
+        value_parser = parse_rs485
+    )]
+    pub rs485: Option<Rs485Mode>,
+}
+
+/// `on-send` or `after-send`, then `before=MS`, `after=MS`, `rx-during-tx`, separated by commas.
+fn parse_rs485(text: &str) -> Result<Rs485Mode, String> {
+    let mut mode = Rs485Mode::default();
+    let delay = |v: &str| -> Result<u32, String> {
+        v.trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|ms| *ms <= MAX_DELAY_MS)
+            .ok_or_else(|| format!("`{v}` is not a delay of 0–{MAX_DELAY_MS} ms"))
+    };
+    for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        match part.split_once('=') {
+            None if part == "on-send" => (mode.rts_on_send, mode.rts_after_send) = (true, false),
+            None if part == "after-send" => (mode.rts_on_send, mode.rts_after_send) = (false, true),
+            None if part == "rx-during-tx" => mode.rx_during_tx = true,
+            Some(("before", v)) => mode.delay_before_send_ms = delay(v)?,
+            Some(("after", v)) => mode.delay_after_send_ms = delay(v)?,
+            _ => {
+                return Err(format!(
+                    "`{part}` is not part of an RS485 mode; use on-send or after-send, \
+                     before=MS, after=MS, rx-during-tx (e.g. --rs485=on-send,before=1)"
+                ));
+            }
+        }
+    }
+    Ok(mode)
 }
 
 fn parse_baud(text: &str) -> Result<BaudRate, String> {
@@ -312,7 +354,7 @@ fn report_error(error: &CommissionError) -> ExitCode {
 }
 
 async fn open(port: &PortArgs, default_margin: Duration) -> Result<Link, CommissionError> {
-    let mut link = Link::open(&port.port, port.baud).await?;
+    let mut link = Link::open_rs485(&port.port, port.baud, port.rs485).await?;
     link.set_margin(
         port.timeout_ms
             .map_or(default_margin, Duration::from_millis),
@@ -497,5 +539,27 @@ fn run_monitor(rt: &Runtime, args: &MonitorArgs) -> ExitCode {
     match result {
         Ok(_) => ExitCode::SUCCESS,
         Err(e) => report_error(&e),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_rs485_mode_is_spelled_as_words_and_delays() {
+        assert_eq!(parse_rs485("on-send"), Ok(Rs485Mode::default()));
+        assert_eq!(
+            parse_rs485("after-send, before=2,after=1,rx-during-tx"),
+            Ok(Rs485Mode {
+                rts_on_send: false,
+                rts_after_send: true,
+                delay_before_send_ms: 2,
+                delay_after_send_ms: 1,
+                rx_during_tx: true,
+            })
+        );
+        assert!(parse_rs485("before=101").unwrap_err().contains("0–100 ms"));
+        assert!(parse_rs485("rts").unwrap_err().contains("`rts`"));
     }
 }

@@ -16,8 +16,10 @@ use crate::protocol::registers::addr;
 use crate::protocol::{
     BaudRate, Decoded, Decoder, Expect, ReplyRequest, ReturnPacket, ServoId, ShortPacket,
 };
+use crate::serial::rs485::Rs485Mode;
 use std::collections::HashMap;
 use std::fmt::Write as _;
+use std::os::fd::{AsRawFd, BorrowedFd};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 use thiserror::Error;
@@ -39,6 +41,15 @@ pub enum LinkError {
         path: PathBuf,
         baud: BaudRate,
         source: tokio_serial::Error,
+    },
+    #[error(
+        "{path} cannot be used: {source}; {advice}",
+        path = path.display(),
+        advice = crate::serial::rs485::refusal_advice(path, "--rs485 from the command")
+    )]
+    Rs485 {
+        path: PathBuf,
+        source: crate::serial::rs485::Rs485Error,
     },
     #[error("serial port {path} failed: {source}")]
     Io {
@@ -84,6 +95,8 @@ pub struct Link {
     margin: Duration,
     retries: u32,
     return_delays: HashMap<u8, Duration>,
+    /// The kernel's RS485 mode set each time the port is opened; `None`: left as it is.
+    rs485: Option<Rs485Mode>,
 }
 
 /// Bytes as `FA AF 01 …` for messages.
@@ -126,8 +139,18 @@ impl Link {
     /// Open `path` at `baud`, 8N1, no flow control, for exclusive use. Call it inside a tokio
     /// runtime.
     pub async fn open(path: impl AsRef<Path>, baud: BaudRate) -> Result<Link, LinkError> {
+        Self::open_rs485(path, baud, None).await
+    }
+
+    /// [`Link::open`], with the port put in the kernel's RS485 mode `rs485` (a UART whose
+    /// transceiver's driver enable is on RTS) each time it is opened.
+    pub async fn open_rs485(
+        path: impl AsRef<Path>,
+        baud: BaudRate,
+        rs485: Option<Rs485Mode>,
+    ) -> Result<Link, LinkError> {
         let path = path.as_ref().to_path_buf();
-        let port = open_port(&path, baud)?;
+        let port = open_port(&path, baud, rs485)?;
         Ok(Link {
             port: Some(port),
             path,
@@ -136,6 +159,7 @@ impl Link {
             margin: Self::DEFAULT_MARGIN,
             retries: Self::DEFAULT_RETRIES,
             return_delays: HashMap::new(),
+            rs485,
         })
     }
 
@@ -155,7 +179,7 @@ impl Link {
             drop(old);
         }
         self.decoder.clear();
-        self.port = Some(open_port(&self.path, baud)?);
+        self.port = Some(open_port(&self.path, baud, self.rs485)?);
         self.baud = baud;
         Ok(())
     }
@@ -456,8 +480,12 @@ impl Link {
     }
 }
 
-fn open_port(path: &Path, baud: BaudRate) -> Result<SerialStream, LinkError> {
-    tokio_serial::new(path.to_string_lossy(), baud.bits_per_second())
+fn open_port(
+    path: &Path,
+    baud: BaudRate,
+    rs485: Option<Rs485Mode>,
+) -> Result<SerialStream, LinkError> {
+    let port = tokio_serial::new(path.to_string_lossy(), baud.bits_per_second())
         .data_bits(DataBits::Eight)
         .parity(Parity::None)
         .stop_bits(StopBits::One)
@@ -467,5 +495,17 @@ fn open_port(path: &Path, baud: BaudRate) -> Result<SerialStream, LinkError> {
             path: path.to_path_buf(),
             baud,
             source,
-        })
+        })?;
+    if let Some(mode) = rs485 {
+        // SAFETY: the descriptor belongs to `port`, which outlives the borrow.
+        let fd = unsafe { BorrowedFd::borrow_raw(port.as_raw_fd()) };
+        let granted = crate::serial::rs485::set(fd, mode).map_err(|source| LinkError::Rs485 {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        if let Some(d) = granted.difference() {
+            tracing::warn!(port = %path.display(), "RS485 mode: the driver changed it: {d}");
+        }
+    }
+    Ok(port)
 }

@@ -88,6 +88,7 @@ impl CommissionError {
                 | CommissionError::IdTaken { .. }
                 | CommissionError::NotLj9da41 { .. }
                 | CommissionError::Refused { .. }
+                | CommissionError::Link(LinkError::Rs485 { .. })
         )
     }
 }

@@ -1,8 +1,9 @@
 //! The `[[bus]]` tables: one RS485 line, its serial port and its baud rate.
 
 use super::error::{ConfigError, Scope};
-use super::raw::{RawBus, RawRate};
+use super::raw::{RawBus, RawRate, RawRs485};
 use crate::protocol::BaudRate;
+use crate::serial::rs485::{MAX_DELAY_MS, Rs485Mode};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -63,6 +64,9 @@ pub struct BusSection {
     /// How often each servo's position and current are read (`telemetry_hz`, a number or
     /// `"max"`); default [`TelemetryRate::DEFAULT`].
     pub telemetry: TelemetryRate,
+    /// The kernel's RS485 mode for the port (`rs485 = { … }`), for a UART whose transceiver's
+    /// driver enable is on RTS; `None`: the port's RS485 setting is left as it is.
+    pub rs485: Option<Rs485Mode>,
 }
 
 /// A bus or servo name: 1–32 ASCII letters, digits, `_` or `-`.
@@ -136,14 +140,99 @@ impl BusSection {
             Some(rate) => telemetry_rate(rate.get_ref())
                 .map_err(|reason| scope.error_on(rate, "telemetry_hz", reason))?,
         };
+        let rs485 = match &raw.rs485 {
+            None => None,
+            Some(r) => Some(rs485_mode(r.get_ref(), turnaround_ms, scope)?),
+        };
         Ok(BusSection {
             name: raw.name.get_ref().clone(),
             port: PathBuf::from(port),
             baud,
             turnaround_ms,
             telemetry,
+            rs485,
         })
     }
+}
+
+/// `rs485 = { … }`: one RTS polarity (RTS high while sending unless told otherwise), delays
+/// the kernel grants (0–100 ms), and a delay before sending that the bus's reply allowance
+/// covers: the request leaves that much later, and so does the reply.
+fn rs485_mode(
+    raw: &RawRs485,
+    turnaround_ms: Option<f32>,
+    scope: &Scope<'_>,
+) -> Result<Rs485Mode, ConfigError> {
+    let flag = |v: &Option<toml::Spanned<bool>>| v.as_ref().map(|v| *v.get_ref());
+    let (on_send, after_send) = match (flag(&raw.rts_on_send), flag(&raw.rts_after_send)) {
+        (None, None) => (true, false),
+        (Some(on), None) => (on, !on),
+        (None, Some(after)) => (!after, after),
+        (Some(on), Some(after)) if on != after => (on, after),
+        (Some(on), Some(_)) => {
+            let value = raw.rts_after_send.as_ref().expect("given");
+            return Err(scope.error_on(
+                value,
+                "rts_after_send",
+                format!(
+                    "rts_on_send and rts_after_send are both {on}: RTS would stay {} and the \
+                     transceiver never switch direction; set exactly one to true \
+                     (rts_on_send = true when RTS drives DE and /RE directly, the usual wiring)",
+                    if on { "high" } else { "low" }
+                ),
+            ));
+        }
+    };
+    let delay = |v: &Option<toml::Spanned<i64>>, key: &str| -> Result<u32, ConfigError> {
+        match v {
+            None => Ok(0),
+            Some(d) => u32::try_from(*d.get_ref())
+                .ok()
+                .filter(|ms| *ms <= MAX_DELAY_MS)
+                .ok_or_else(|| {
+                    scope.error_on(
+                        d,
+                        key,
+                        format!(
+                            "{} ms is outside 0–{MAX_DELAY_MS} ms (the kernel grants at most \
+                             {MAX_DELAY_MS} ms)",
+                            d.get_ref()
+                        ),
+                    )
+                }),
+        }
+    };
+    let before = delay(&raw.delay_before_send_ms, "delay_before_send_ms")?;
+    let after = delay(&raw.delay_after_send_ms, "delay_after_send_ms")?;
+    if before > 0 {
+        let default_ms = crate::bus::BusConfig::DEFAULT_TURNAROUND.as_secs_f32() * 1000.0;
+        let allowance = turnaround_ms.unwrap_or(default_ms);
+        let needed = before as f32 + default_ms;
+        if allowance < needed {
+            let value = raw.delay_before_send_ms.as_ref().expect("given");
+            return Err(scope.error_on(
+                value,
+                "delay_before_send_ms",
+                format!(
+                    "every packet leaves {before} ms late, and its reply with it, beyond this \
+                     bus's reply allowance of {allowance} ms{}; set turnaround_ms = {needed} \
+                     (or more) in this [[bus]] table, or lower the delay",
+                    if turnaround_ms.is_none() {
+                        " (the default turnaround_ms)"
+                    } else {
+                        ""
+                    }
+                ),
+            ));
+        }
+    }
+    Ok(Rs485Mode {
+        rts_on_send: on_send,
+        rts_after_send: after_send,
+        delay_before_send_ms: before,
+        delay_after_send_ms: after,
+        rx_during_tx: flag(&raw.rx_during_tx).unwrap_or(false),
+    })
 }
 
 fn telemetry_rate(raw: &RawRate) -> Result<TelemetryRate, String> {

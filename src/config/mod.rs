@@ -28,6 +28,7 @@
 //! | | `baud` | 115200 | one of the servo's rates, 9600 … 460800 |
 //! | | `turnaround_ms` | bus master's own | extra reply allowance (return delay + adapter latency) |
 //! | | `telemetry_hz` | 50 | reads of position and current per servo per second, or `"max"` (every free moment) |
+//! | | `rs485` | none (the port's setting is left alone) | `{ rts_on_send, rts_after_send, delay_before_send_ms, delay_after_send_ms, rx_during_tx }`: the kernel's RS485 mode for a UART whose transceiver's driver enable is on RTS (see `docs/rs485.md`) |
 //! | `[[servo]]` | `name`, `bus`, `id`, `channel` | (required) | name, bus, ID 1–127, output 1–32 |
 //! | | `label` | name if ≤ 6 chars, else `s<n>` | NAMED_VALUE_FLOAT prefix, ≤ 6 chars |
 //! | | `pwm_min_us`, `pwm_trim_us`, `pwm_max_us` | 920, 1520, 2120 | ↔ −25, 0, +25 mm |

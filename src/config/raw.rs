@@ -72,6 +72,18 @@ pub(crate) struct RawBus {
     pub baud: Option<Spanned<i64>>,
     pub turnaround_ms: Option<Spanned<f64>>,
     pub telemetry_hz: Option<Spanned<RawRate>>,
+    pub rs485: Option<Spanned<RawRs485>>,
+}
+
+/// `rs485 = { … }` of a bus: the kernel's RS485 mode for a UART.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawRs485 {
+    pub rts_on_send: Option<Spanned<bool>>,
+    pub rts_after_send: Option<Spanned<bool>>,
+    pub delay_before_send_ms: Option<Spanned<i64>>,
+    pub delay_after_send_ms: Option<Spanned<i64>>,
+    pub rx_during_tx: Option<Spanned<bool>>,
 }
 
 /// A rate in Hz, or a word such as `"max"`.

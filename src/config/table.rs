@@ -71,6 +71,7 @@ pub(super) fn resolved_table(config: &Config) -> String {
         "turnaround",
         "servos",
         "telemetry (wire allows)",
+        "rs485",
     ])];
     let goal_period =
         std::time::Duration::from_secs_f64(1.0 / f64::from(config.mavlink.output_rate_hz));
@@ -85,6 +86,8 @@ pub(super) fn resolved_table(config: &Config) -> String {
                 .map_or("default".to_string(), |ms| format!("{ms} ms")),
             servos.to_string(),
             format!("{} (≈ {allowed:.0} Hz)", bus.telemetry),
+            bus.rs485
+                .map_or("port's own".to_string(), |m| m.to_string()),
         ]);
     }
     out.push_str(&aligned(&buses));

@@ -23,7 +23,48 @@ pub fn warnings(cfg: &Config) -> Vec<String> {
             .iter()
             .filter_map(|b| telemetry_beyond_wire(cfg, b)),
     );
+    out.extend(cfg.buses.iter().filter_map(rs485_hold_after_send));
+    out.extend(cfg.buses.iter().filter_map(rs485_on_usb_adapter));
     out
+}
+
+/// A bus asking for the kernel's RS485 mode on what its name says is a USB adapter: those
+/// switch direction by themselves and their drivers have no RS485 mode, so the bus would not
+/// start.
+pub fn rs485_on_usb_adapter(bus: &BusSection) -> Option<String> {
+    bus.rs485?;
+    let port = bus.port.to_string_lossy();
+    let usb = ["/ttyUSB", "/ttyACM", "/serial/by-id/usb-"]
+        .iter()
+        .any(|p| port.contains(p))
+        || (port.contains("/serial/by-path/") && port.contains("-usb-"));
+    usb.then(|| {
+        format!(
+            "warning: bus \"{}\" asks for RS485 mode (rs485 = {{ … }}) on {port}, a USB \
+             adapter by its name: USB–RS485 adapters switch direction by themselves and their \
+             drivers refuse RS485 mode, so this bus would not start. Remove `rs485` from it; it \
+             is for an RS485 board on a UART (/dev/ttyAMA0, /dev/serial0).",
+            bus.name
+        )
+    })
+}
+
+/// A bus whose transceiver stays driven after each packet: a servo that answers sooner (its
+/// Return Delay Time, register 7, is 0 ms from the factory) is talked over. (Said by `check`,
+/// and once when the bridge starts.)
+pub fn rs485_hold_after_send(bus: &BusSection) -> Option<String> {
+    let ms = bus.rs485?.delay_after_send_ms;
+    (ms > 0).then(|| {
+        format!(
+            "warning: bus \"{name}\" keeps driving the line {ms} ms after each packet \
+             (rs485 delay_after_send_ms = {ms}), while the LJ9DA41 answers after its Return \
+             Delay Time (register 7, 0 ms from the factory): every servo on it needs a return \
+             delay of at least {ms} ms (lj9da-bridge set --port {port} --id N return-delay={ms} \
+             --save), or the start of each reply is lost.",
+            name = bus.name,
+            port = bus.port.display()
+        )
+    })
 }
 
 /// A bus whose `telemetry_hz` asks more reads than its wire carries: it reads as often as it
