@@ -41,6 +41,8 @@
 pub mod cli;
 mod clock;
 mod crc;
+#[cfg(test)]
+mod cross_arch;
 pub mod csv;
 pub mod feed;
 pub mod format;
