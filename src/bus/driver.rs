@@ -11,9 +11,7 @@
 //!
 //! The bus thread reads the port when the bus master says a reply should be there, not on
 //! every byte: it sleeps until the bus master's next deadline or until the awaited reply should
-//! be (nearly) whole ([`BusMaster::reply_look_at`]) on a timer that a thread writing goals moves
-//! earlier when it makes something due sooner (one wake-up, at the right instant, instead of
-//! one to learn of it and another at it), reads whatever has arrived without
+//! be (nearly) whole ([`BusMaster::reply_look_at`]), reads whatever has arrived without
 //! blocking, and if part of the reply is still missing, waits on the port with the tty's read
 //! threshold (termios `VMIN`) set to the bytes missing ([`BusMaster::bytes_awaited`]), so the
 //! kernel wakes it once they are all in. A reply costs about one wake-up, not one per byte (at
@@ -36,15 +34,13 @@ use super::status::{BusStatus, ThreadUsage};
 use crate::protocol::{BaudRate, ServoId};
 use nix::fcntl::{FcntlArg, OFlag, fcntl};
 use nix::poll::{PollFd, PollFlags, ppoll};
-use nix::sys::eventfd::{EfdFlags, EventFd};
 use nix::sys::termios::{SetArg, SpecialCharacterIndices, Termios, tcdrain, tcgetattr, tcsetattr};
 use nix::sys::time::TimeSpec;
-use nix::sys::timerfd::{ClockId, Expiration, TimerFd, TimerFlags, TimerSetTimeFlags};
 use std::fs::File;
 use std::io::{Read, Write};
 use std::os::fd::{AsFd, AsRawFd, FromRawFd, IntoRawFd};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, watch};
 use tokio_serial::{DataBits, FlowControl, Parity, StopBits};
@@ -235,10 +231,9 @@ struct Core {
     port: Option<File>,
     /// Why the last write failed; the bus thread then treats the port as lost.
     write_error: Option<String>,
-    /// The instant the bus thread looks at the bus master next: set by the thread before it
-    /// sleeps, moved earlier (with its timer) by a thread that made something due sooner.
+    /// The instant the bus thread sleeps until (its next look at the bus master).
     armed: Option<Instant>,
-    /// The bus thread has something to look at at once (a goal left for it, a shutdown).
+    /// The bus thread has something to look at (a goal, a shutdown).
     woken: bool,
     late_wakeups: LateWakeups,
 }
@@ -325,81 +320,31 @@ impl Core {
         }
     }
 
-    /// When the bus thread must look at the bus master again, after another thread wrote: the
-    /// bus master's deadline, or the look at a reply it now awaits, if that comes before the
-    /// instant the thread sleeps until. A later one needs nothing: the thread wakes at the old
-    /// instant, finds nothing due and sleeps again.
-    fn look_sooner(&self) -> Option<Instant> {
+    /// Whether the bus thread must look again after another thread wrote: the port failed, or
+    /// the bus master's deadline (or the look at a reply it now awaits) comes before the
+    /// instant the thread sleeps until. A later deadline needs no wake-up: the thread wakes at
+    /// the old one, finds nothing due and sleeps again. (On an idle bus, a goal's frame is
+    /// written by the caller and the thread is left asleep: waking it would take a CPU from the
+    /// simulator, or the kernel's tty worker, that should pass the frame on.)
+    fn driver_must_wake(&self) -> bool {
         let next = [self.master.poll_timeout(), self.master.reply_look_at()]
             .into_iter()
             .flatten()
-            .min()?;
-        self.armed.is_none_or(|armed| next < armed).then_some(next)
+            .min();
+        self.write_error.is_some()
+            || match (next, self.armed) {
+                (Some(next), Some(armed)) => next < armed,
+                (Some(_), None) => true,
+                (None, _) => false,
+            }
     }
 }
 
 /// What the bus thread and every [`BusHandle`] share.
 struct Shared {
     core: Mutex<Core>,
-    /// What the bus thread sleeps on (`Err`: it could not be made, and the bus does not run).
-    sleeper: Result<Sleeper, String>,
-}
-
-/// What the bus thread sleeps on: a timer that another thread may move earlier without waking
-/// it, and an event that wakes it at once. When the caller of [`BusHandle::output_message`]
-/// writes a long packet and a read becomes due sooner than the thread's next look, it moves the
-/// timer: the thread wakes once, when the read is due (on this kind of computer a wake-up costs
-/// more CPU than a transaction's work), not once to learn the new instant and again at it.
-struct Sleeper {
-    timer: TimerFd,
-    event: EventFd,
-}
-
-impl Sleeper {
-    fn new() -> nix::Result<Self> {
-        Ok(Sleeper {
-            timer: TimerFd::new(
-                ClockId::CLOCK_MONOTONIC,
-                TimerFlags::TFD_NONBLOCK | TimerFlags::TFD_CLOEXEC,
-            )?,
-            event: EventFd::from_value_and_flags(
-                0,
-                EfdFlags::EFD_NONBLOCK | EfdFlags::EFD_CLOEXEC,
-            )?,
-        })
-    }
-
-    /// Ring at `at` (at once if it has passed), in place of the instant set before.
-    fn arm(&self, at: Instant) {
-        // A zero expiration would disarm the timer.
-        let left = at
-            .saturating_duration_since(Instant::now())
-            .max(Duration::from_nanos(1));
-        let _ = self.timer.set(
-            Expiration::OneShot(TimeSpec::from_duration(left)),
-            TimerSetTimeFlags::empty(),
-        );
-    }
-
-    /// Wake the thread in [`Sleeper::wait`] at once (or its next wait, if it is not waiting).
-    fn ring(&self) {
-        let _ = self.event.write(1);
-    }
-
-    /// Block until the timer or the event rings (or a signal arrives).
-    fn wait(&self) {
-        let mut fds = [
-            PollFd::new(self.timer.as_fd(), PollFlags::POLLIN),
-            PollFd::new(self.event.as_fd(), PollFlags::POLLIN),
-        ];
-        let _ = ppoll(&mut fds, None, None);
-        if fds[1]
-            .revents()
-            .is_some_and(|r| r.contains(PollFlags::POLLIN))
-        {
-            let _ = self.event.read();
-        }
-    }
+    /// Signalled with [`Core::woken`] set when the bus master changed under the bus thread.
+    wake: Condvar,
 }
 
 impl Shared {
@@ -413,50 +358,29 @@ impl Shared {
     fn wake(&self, mut core: MutexGuard<'_, Core>) {
         core.woken = true;
         drop(core);
-        if let Ok(sleeper) = &self.sleeper {
-            sleeper.ring();
-        }
+        self.wake.notify_one();
     }
 
-    /// After another thread wrote: a failed write wakes the bus thread at once; something due
-    /// sooner than its next look moves its timer ([`Sleeper`]).
-    fn after_write(&self, mut core: MutexGuard<'_, Core>) {
-        if core.write_error.is_some() {
-            return self.wake(core);
-        }
-        if let Some(next) = core.look_sooner() {
-            core.armed = Some(next);
-            if let Ok(sleeper) = &self.sleeper {
-                sleeper.arm(next);
-            }
-        }
-    }
-
-    /// Sleep until `until` (or the earlier instant another thread moved [`Core::armed`] to), or
-    /// until woken; returns the core locked again. A wake-up more than [`LATE_WAKEUP`] after
-    /// that instant is counted.
+    /// Sleep until `until`, or until woken; returns the core locked again. A wake-up more than
+    /// [`LATE_WAKEUP`] after `until` is counted.
     fn sleep<'a>(&'a self, mut core: MutexGuard<'a, Core>, until: Instant) -> MutexGuard<'a, Core> {
-        let Ok(sleeper) = &self.sleeper else {
-            return core;
-        };
         let mut slept = false;
         while !core.woken {
-            let target = core.armed.map_or(until, |armed| armed.min(until));
-            let now = Instant::now();
-            if now >= target {
-                let late = now - target;
-                if slept && late > LATE_WAKEUP {
-                    core.late_wakeup(late);
-                }
+            let Some(left) = until
+                .checked_duration_since(Instant::now())
+                .filter(|d| !d.is_zero())
+            else {
                 break;
-            }
-            // Armed with the core locked: a thread that moves the timer earlier does so after
-            // this, and the wait below ends at its instant.
-            sleeper.arm(target);
-            drop(core);
-            sleeper.wait();
+            };
             slept = true;
-            core = self.core();
+            core = match self.wake.wait_timeout(core, left) {
+                Ok((core, _)) => core,
+                Err(poisoned) => poisoned.into_inner().0,
+            };
+        }
+        let late = Instant::now().saturating_duration_since(until);
+        if slept && !core.woken && late > LATE_WAKEUP {
+            core.late_wakeup(late);
         }
         core.woken = false;
         core
@@ -540,8 +464,10 @@ impl BusHandle {
             core.master.set_goal(id, goal, now);
         }
         core.flush();
-        // The write is done; the bus thread is woken only when it must look sooner.
-        shared.after_write(core);
+        // The write is done; the bus thread is woken only when it must re-arm.
+        if core.driver_must_wake() {
+            shared.wake(core);
+        }
     }
 
     /// The latest status the bus thread published.
@@ -604,7 +530,7 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
             woken: false,
             late_wakeups: LateWakeups::default(),
         }),
-        sleeper: Sleeper::new().map_err(|e| format!("cannot make the bus thread's timer: {e}")),
+        wake: Condvar::new(),
     });
     let driver = Driver {
         name: name.clone(),
@@ -672,17 +598,6 @@ struct Driver {
 
 impl Driver {
     fn run(mut self) {
-        if let Err(reason) = &self.shared.sleeper {
-            tracing::error!(bus = %self.name, "the bus cannot run: {reason}");
-            let reason = reason.clone();
-            self.shared
-                .core()
-                .master
-                .handle_port_lost(reason, Instant::now());
-            self.publish(true);
-            let _ = self.finished.send(true);
-            return;
-        }
         if let Err(e) = nix::sys::prctl::set_timerslack(TIMER_SLACK_NS) {
             tracing::debug!(bus = %self.name, "timer slack stays at its default: {e}");
         }
@@ -754,8 +669,7 @@ impl Driver {
         let until = Instant::now() + wait;
         loop {
             {
-                let mut core = self.shared.core();
-                core.armed = Some(until);
+                let core = self.shared.core();
                 let mut core = self.shared.sleep(core, until);
                 core.master.handle_timeout(Instant::now());
                 if core.master.shutdown_requested() {
@@ -1016,51 +930,6 @@ impl Drop for ReplyWaiter {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The caller of `output_message` moves the bus thread's timer earlier without waking it:
-    /// the wait must end at the new instant, not at the one it began with, and not at once.
-    #[test]
-    fn a_timer_moved_earlier_by_another_thread_ends_the_wait_at_its_new_instant() {
-        let sleeper = Arc::new(Sleeper::new().expect("timerfd and eventfd"));
-        sleeper.arm(Instant::now() + Duration::from_secs(60));
-        let start = Instant::now();
-        let mover = {
-            let sleeper = Arc::clone(&sleeper);
-            std::thread::spawn(move || {
-                std::thread::sleep(Duration::from_millis(30));
-                sleeper.arm(Instant::now() + Duration::from_millis(20));
-            })
-        };
-        sleeper.wait();
-        let waited = start.elapsed();
-        mover.join().expect("the other thread");
-        assert!(
-            waited >= Duration::from_millis(45),
-            "ended before the moved instant: {waited:?}"
-        );
-        assert!(
-            waited < Duration::from_secs(30),
-            "ended at the first instant, not the moved one: {waited:?}"
-        );
-    }
-
-    #[test]
-    fn a_ring_ends_the_wait_at_once_and_is_spent_by_it() {
-        let sleeper = Sleeper::new().expect("timerfd and eventfd");
-        sleeper.arm(Instant::now() + Duration::from_secs(60));
-        sleeper.ring();
-        let start = Instant::now();
-        sleeper.wait();
-        assert!(start.elapsed() < Duration::from_secs(30));
-        // Spent: the next wait lasts until the timer.
-        sleeper.arm(Instant::now() + Duration::from_millis(50));
-        let start = Instant::now();
-        sleeper.wait();
-        assert!(
-            start.elapsed() >= Duration::from_millis(45),
-            "a ring woke the thread twice"
-        );
-    }
 
     #[test]
     fn a_late_wake_up_is_told_once_then_only_counted() {
