@@ -8,7 +8,7 @@ mod bus_support;
 use bus_support::*;
 use lj9da_bridge::bus::spawn_bus;
 use lj9da_bridge::protocol::BaudRate;
-use lj9da_bridge::serial::rs485::{self, Rs485Mode};
+use lj9da_bridge::serial::rs485::Rs485Mode;
 use nix::pty::{OpenptyResult, openpty};
 use std::io::{BufRead, BufReader, Read};
 use std::os::fd::AsRawFd;
@@ -25,8 +25,9 @@ fn bare_pty() -> (OpenptyResult, std::path::PathBuf) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_refused_bus_stays_closed_and_silent_while_the_others_run() {
     let (refusing, refusing_path) = bare_pty();
-    rs485::configure("wing", &refusing_path, Some(Rs485Mode::default()));
-    let refused = spawn_bus(bus_config(&[1], BaudRate::B115200), refusing_path.clone());
+    let mut wing = bus_config(&[1], BaudRate::B115200);
+    wing.rs485 = Some(Rs485Mode::default());
+    let refused = spawn_bus(wing.clone(), refusing_path.clone());
 
     let ids = [1, 2];
     let sim = spawn_sim(sim_config(&ids, 115_200));
@@ -62,12 +63,14 @@ async fn a_refused_bus_stays_closed_and_silent_while_the_others_run() {
     assert!(running.status().port_open);
 
     // Without the RS485 request the same port opens: the refusal is what kept it closed.
-    rs485::configure("wing", &refusing_path, None);
-    wait_status(
-        &refused,
-        "the port open once RS485 mode is no longer asked",
-        |s| s.port_open,
-    )
+    refused
+        .shutdown(lj9da_bridge::bus::ShutdownForce::AsIs)
+        .await;
+    wing.rs485 = None;
+    let plain = spawn_bus(wing, refusing_path.clone());
+    wait_status(&plain, "the same port open with no RS485 mode asked", |s| {
+        s.port_open
+    })
     .await;
 }
 

@@ -3,6 +3,7 @@
 //! Plain data with defaults; nothing here talks to a port or reads a clock.
 
 use crate::protocol::{BaudRate, Ma10, MmCenti, Ms10, Percent, ServoId};
+use crate::serial::rs485::Rs485Mode;
 use std::time::Duration;
 
 /// One servo on the bus, as the mapping file describes it.
@@ -110,6 +111,9 @@ pub struct BusConfig {
     /// After a goal, no poll starts for this long: the other messages of the same autopilot
     /// tick (SERVO_OUTPUT_RAW port 1, ACTUATOR_OUTPUT_STATUS, a command) find the bus free.
     pub tick_gather: Duration,
+    /// The RS485 mode set on the port each time it opens (`None`: the port's setting is left
+    /// as it is). A driver that refuses it keeps the port closed.
+    pub rs485: Option<Rs485Mode>,
 }
 
 impl BusConfig {
@@ -150,6 +154,7 @@ impl BusConfig {
             verify_interval: Duration::from_secs(1),
             full_telemetry_interval: Self::DEFAULT_FULL_TELEMETRY_INTERVAL,
             tick_gather: Self::DEFAULT_TICK_GATHER,
+            rs485: None,
         }
     }
 

@@ -32,6 +32,7 @@ use super::goal::{Goal, ShutdownForce};
 use super::master::BusMaster;
 use super::status::{BusStatus, ThreadUsage};
 use crate::protocol::{BaudRate, ServoId};
+use crate::serial::rs485::Rs485Request;
 use nix::fcntl::{FcntlArg, OFlag, fcntl};
 use nix::poll::{PollFd, PollFlags, ppoll};
 use nix::sys::termios::{SetArg, SpecialCharacterIndices, Termios, tcdrain, tcgetattr, tcsetattr};
@@ -517,6 +518,7 @@ pub fn spawn_bus(cfg: BusConfig, port: PathBuf) -> BusHandle {
 pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver) -> BusHandle {
     let cfg = widen_allowance_for_simulated_servos(cfg, &port);
     let name = cfg.name.clone();
+    let rs485 = cfg.rs485;
     let master = BusMaster::new(cfg, Instant::now());
     let (status_tx, status_rx) = watch::channel(master.status());
     let (event_tx, _) = broadcast::channel(EVENT_CAPACITY);
@@ -536,6 +538,7 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
         name: name.clone(),
         shared: Arc::clone(&shared),
         path: port,
+        rs485: rs485.map(|mode| Rs485Request::new(name.clone(), mode)),
         status: status_tx,
         observe,
         events: event_tx.clone(),
@@ -558,9 +561,14 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
 }
 
 /// Open `path` at `baud`, 8N1, no flow control, not exclusive (a pseudo-terminal in tests),
-/// non-blocking: reads return what has arrived, writes never wait. With it, the bus thread's
-/// [`ReplyWaiter`] on the same port.
-fn open_port(path: &Path, baud: BaudRate) -> Result<(File, ReplyWaiter), String> {
+/// non-blocking: reads return what has arrived, writes never wait; in RS485 mode when the bus
+/// asks for it (a refusal keeps the port closed). With it, the bus thread's [`ReplyWaiter`] on
+/// the same port.
+fn open_port(
+    path: &Path,
+    baud: BaudRate,
+    rs485: Option<&mut Rs485Request>,
+) -> Result<(File, ReplyWaiter), String> {
     let mut native = tokio_serial::new(path.to_string_lossy(), baud.bits_per_second())
         .data_bits(DataBits::Eight)
         .parity(Parity::None)
@@ -572,7 +580,9 @@ fn open_port(path: &Path, baud: BaudRate) -> Result<(File, ReplyWaiter), String>
     // SAFETY: `into_raw_fd` hands over a valid, open descriptor that nothing else owns or
     // closes any more; the `File` becomes its only owner.
     let port = unsafe { File::from_raw_fd(native.into_raw_fd()) };
-    crate::serial::rs485::apply_configured(path, port.as_fd())?;
+    if let Some(request) = rs485 {
+        request.apply(path, port.as_fd())?;
+    }
     let flags = fcntl(port.as_raw_fd(), FcntlArg::F_GETFL).map_err(|e| e.to_string())?;
     let flags = OFlag::from_bits_retain(flags) | OFlag::O_NONBLOCK;
     fcntl(port.as_raw_fd(), FcntlArg::F_SETFL(flags)).map_err(|e| e.to_string())?;
@@ -589,6 +599,8 @@ struct Driver {
     name: String,
     shared: Arc<Shared>,
     path: PathBuf,
+    /// The RS485 mode the port is put in each time it opens.
+    rs485: Option<Rs485Request>,
     status: watch::Sender<BusStatus>,
     observe: StatusObserver,
     events: broadcast::Sender<BusEvent>,
@@ -619,7 +631,7 @@ impl Driver {
         };
         let mut backoff = Duration::ZERO;
         loop {
-            match open_port(&self.path, baud) {
+            match open_port(&self.path, baud, self.rs485.as_mut()) {
                 Ok((port, waiter)) => {
                     backoff = Duration::ZERO;
                     tracing::info!(bus = %self.name, port = %self.path.display(), "serial port open at {baud}");

@@ -130,7 +130,7 @@ impl Buses {
                 .cloned()
                 .unwrap_or_else(|| bus.port.clone());
             tracing::info!(bus = %bus.name, port = %port.display(), baud = %bus.baud, "opening bus");
-            crate::serial::rs485::configure_bus(bus, &port, ports.contains_key(&bus.name));
+            bus_cfg.rs485 = crate::serial::rs485::mode_for_bus(bus, ports.contains_key(&bus.name));
             handles.push(match record {
                 Some(r) => {
                     let mut feed = StatusFeed::new(r.clone(), &RecordServo::from_config(cfg));

@@ -4,7 +4,7 @@
 //!
 //! A bus asks for it with `rs485 = { … }` in its `[[bus]]` table (see `docs/rs485.md`); without
 //! that key the port's RS485 setting is left as it is. The setting is applied each time the
-//! bus's port is opened ([`apply_configured`], called by the bus driver), read back, and a
+//! bus's port is opened (by the bus driver, through its [`Rs485Request`]), read back, and a
 //! driver that clamped a delay is reported with what was asked and what was granted. A driver
 //! that refuses RS485 mode (a UART without it in its device tree, a USB adapter, a
 //! pseudo-terminal) keeps the bus closed: it is reported once as an error naming the bus, the
@@ -13,8 +13,7 @@
 
 use std::fmt;
 use std::os::fd::{AsRawFd, BorrowedFd};
-use std::path::{Path, PathBuf};
-use std::sync::Mutex;
+use std::path::Path;
 
 /// `SER_RS485_ENABLED` of `<linux/serial.h>`: RS485 mode on.
 pub const SER_RS485_ENABLED: u32 = 1 << 0;
@@ -261,104 +260,88 @@ pub fn refusal_advice(port: &Path, request: &str) -> String {
 /// Where a bus asks for RS485 mode, for [`refusal_advice`].
 pub const IN_MAPPING: &str = "`rs485` from this bus in the mapping file";
 
-/// One bus's RS485 request, kept until its port is opened.
+/// One bus's RS485 request, held by its bus driver and applied each time the port opens
+/// ([`Rs485Request::apply`]). What was last said in the log is kept, so that a port tried
+/// again and again is reported once, and again only when the outcome changes.
 #[derive(Debug)]
-struct Configured {
+pub struct Rs485Request {
     bus: String,
-    port: PathBuf,
     mode: Rs485Mode,
-    /// What was last said in the log about this port (said again only when it changes).
     told: Option<String>,
 }
 
-static CONFIGURED: Mutex<Vec<Configured>> = Mutex::new(Vec::new());
-
-fn configured() -> std::sync::MutexGuard<'static, Vec<Configured>> {
-    CONFIGURED.lock().unwrap_or_else(|e| e.into_inner())
-}
-
-/// Ask for RS485 mode `mode` on `port` whenever the bus driver opens it, for bus `bus`
-/// (`None`: leave the port's setting as it is). Called for each bus before it starts.
-pub fn configure(bus: &str, port: &Path, mode: Option<Rs485Mode>) {
-    let mut all = configured();
-    all.retain(|c| c.port != port);
-    if let Some(mode) = mode {
-        all.push(Configured {
-            bus: bus.to_string(),
-            port: port.to_path_buf(),
+impl Rs485Request {
+    pub fn new(bus: impl Into<String>, mode: Rs485Mode) -> Self {
+        Rs485Request {
+            bus: bus.into(),
             mode,
             told: None,
-        });
+        }
+    }
+
+    /// The mode asked for.
+    pub fn mode(&self) -> Rs485Mode {
+        self.mode
+    }
+
+    /// Set the mode on `fd`, the just-opened `port`. A refusal is logged as an error with what
+    /// to check and returned as the reason the port cannot be used; a driver that changed the
+    /// mode is reported with what was asked and what was granted.
+    pub fn apply(&mut self, port: &Path, fd: BorrowedFd<'_>) -> Result<(), String> {
+        let result = set(fd, self.mode);
+        let said = match &result {
+            Ok(g) => g.difference().unwrap_or_else(|| self.mode.to_string()),
+            Err(e) => e.to_string(),
+        };
+        let first = self.told.as_deref() != Some(said.as_str());
+        self.told = Some(said);
+        match result {
+            Ok(granted) => {
+                if first {
+                    match granted.difference() {
+                        Some(d) => tracing::warn!(
+                            bus = %self.bus,
+                            port = %port.display(),
+                            "RS485 mode: the driver changed it: {d}"
+                        ),
+                        None => tracing::info!(
+                            bus = %self.bus,
+                            port = %port.display(),
+                            "RS485 mode on: {}",
+                            self.mode
+                        ),
+                    }
+                }
+                Ok(())
+            }
+            Err(e) => {
+                if first {
+                    tracing::error!(
+                        bus = %self.bus,
+                        port = %port.display(),
+                        "bus \"{}\" not started: {}: {e}; {}",
+                        self.bus,
+                        port.display(),
+                        refusal_advice(port, IN_MAPPING)
+                    );
+                }
+                Err(format!("RS485 mode not set: {e}"))
+            }
+        }
     }
 }
 
-/// [`configure`] bus `bus` of a mapping file on `port` (its own, or the one a simulation put
-/// in its place: `simulated`, a pseudo-terminal with no RS485 mode to set), and say once what
-/// the mode asks of the servos.
-pub fn configure_bus(bus: &crate::config::BusSection, port: &Path, simulated: bool) {
+/// The RS485 mode bus `bus` of a mapping file asks of its port (`None` when the port is a
+/// simulation's pseudo-terminal, `simulated`, which has no RS485 mode to set), having said once
+/// what the mode asks of the servos.
+pub fn mode_for_bus(bus: &crate::config::BusSection, simulated: bool) -> Option<Rs485Mode> {
     let mode = bus.rs485.filter(|_| !simulated);
     if mode.is_some()
         && let Some(w) = crate::config::warnings::rs485_hold_after_send(bus)
     {
         tracing::warn!("{}", w.trim_start_matches("warning: "));
     }
-    configure(&bus.name, port, mode);
-}
-
-/// The RS485 mode asked for `port`, if any.
-pub fn configured_mode(port: &Path) -> Option<Rs485Mode> {
-    configured().iter().find(|c| c.port == port).map(|c| c.mode)
-}
-
-/// Apply the RS485 mode [`configure`]d for `port` to the just-opened `fd` (nothing when none
-/// was). A refusal is logged once as an error with what to check, and returned as the reason
-/// the port cannot be used; a driver that changed the mode is reported with what was asked
-/// and what was granted.
-pub fn apply_configured(port: &Path, fd: BorrowedFd<'_>) -> Result<(), String> {
-    let mut all = configured();
-    let Some(entry) = all.iter_mut().find(|c| c.port == port) else {
-        return Ok(());
-    };
-    let result = set(fd, entry.mode);
-    let said = match &result {
-        Ok(g) => g.difference().unwrap_or_else(|| entry.mode.to_string()),
-        Err(e) => e.to_string(),
-    };
-    let first = entry.told.as_deref() != Some(said.as_str());
-    entry.told = Some(said);
-    match result {
-        Ok(granted) => {
-            if first {
-                match granted.difference() {
-                    Some(d) => tracing::warn!(
-                        bus = %entry.bus,
-                        port = %port.display(),
-                        "RS485 mode: the driver changed it: {d}"
-                    ),
-                    None => tracing::info!(
-                        bus = %entry.bus,
-                        port = %port.display(),
-                        "RS485 mode on: {}",
-                        entry.mode
-                    ),
-                }
-            }
-            Ok(())
-        }
-        Err(e) => {
-            if first {
-                tracing::error!(
-                    bus = %entry.bus,
-                    port = %port.display(),
-                    "bus \"{}\" not started: {}: {e}; {}",
-                    entry.bus,
-                    port.display(),
-                    refusal_advice(port, IN_MAPPING)
-                );
-            }
-            Err(format!("RS485 mode not set: {e}"))
-        }
-    }
+    mode
 }
 
 #[cfg(test)]
@@ -489,19 +472,16 @@ mod tests {
 
     #[cfg(target_os = "linux")]
     #[test]
-    fn only_a_configured_port_is_touched_and_a_refusal_names_the_reason() {
+    fn a_refusal_names_the_reason_every_time_it_is_tried() {
         let pty = nix::pty::openpty(None, None).unwrap();
         let path = nix::unistd::ttyname(&pty.slave).unwrap();
-        // Nothing asked for this port: nothing done, even though it has no RS485 mode.
-        assert_eq!(apply_configured(&path, pty.slave.as_fd()), Ok(()));
-        configure("wing", &path, Some(Rs485Mode::default()));
-        assert_eq!(configured_mode(&path), Some(Rs485Mode::default()));
-        let reason = apply_configured(&path, pty.slave.as_fd()).unwrap_err();
-        assert!(reason.contains("refuses RS485 mode"), "{reason}");
-        assert!(reason.contains("ENOTTY"), "{reason}");
-        configure("wing", &path, None);
-        assert_eq!(configured_mode(&path), None);
-        assert_eq!(apply_configured(&path, pty.slave.as_fd()), Ok(()));
+        let mut request = Rs485Request::new("wing", Rs485Mode::default());
+        assert_eq!(request.mode(), Rs485Mode::default());
+        for _ in 0..2 {
+            let reason = request.apply(&path, pty.slave.as_fd()).unwrap_err();
+            assert!(reason.contains("refuses RS485 mode"), "{reason}");
+            assert!(reason.contains("ENOTTY"), "{reason}");
+        }
     }
 
     #[test]
