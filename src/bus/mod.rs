@@ -5,7 +5,7 @@
 //! - [`master`]: [`BusMaster`], the sans-IO scheduler. It is handed goals, received bytes and
 //!   the current time, and answers with the next bytes to write and the next deadline. It
 //!   never does I/O and never reads a clock, so its tests run at microsecond precision without
-//!   sleeping. [`servo`] is its per-servo record (start-up phase, force, goals, stall watch).
+//!   sleeping. `servo` is its per-servo record (start-up phase, force, goals, stall watch).
 //! - [`driver`]: the thin shell ([`spawn_bus`], [`BusHandle`]) that runs one bus master in a
 //!   thread of its own over a serial port, reading it on the bus master's clock (one wake-up
 //!   per reply) and reopening it when it disappears. Several buses run side by side, one

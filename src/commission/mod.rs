@@ -2,7 +2,7 @@
 //! (`lj9da-bridge scan | info | set | move | force | factory-reset | monitor`).
 //!
 //! Each subcommand is a function that takes a [`Link`] (one serial port, one transaction at a
-//! time) and returns a plain data report; [`print`] turns reports into tables and JSON, and
+//! time) and returns a plain data report; [`print`](mod@print) turns reports into tables and JSON, and
 //! [`cli`] holds the command-line arguments and the glue. Every value is validated by the
 //! protocol core before anything is written, and every write is read back; a refused command
 //! writes nothing at all.
@@ -12,7 +12,7 @@
 //! - [`settings`]: `key=value` arguments of `set`, parsed and validated into packets.
 //! - [`scan`], [`info`], [`set`], [`motion`] (`move`, `force`), [`reset`]
 //!   (`factory-reset`), [`monitor`]: the subcommands.
-//! - [`print`], [`json`]: output for people and for scripts.
+//! - [`print`](mod@print), [`json`]: output for people and for scripts.
 //! - [`cli`]: clap arguments and dispatch.
 
 pub mod cli;

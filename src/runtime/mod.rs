@@ -2,10 +2,10 @@
 //! and the buses named in the mapping file, carries messages, goals, events and statuses
 //! between [`BridgeCore`] and the bus drivers, and stops cleanly on request.
 //!
-//! A run has three parts: start-up ([`Bridge::start`]: links, signing, flight record, buses,
-//! the tasks that feed the loop), the loop ([`Bridge::serve`]: one input at a time into the
+//! A run has three parts: start-up (`Bridge::start`: links, signing, flight record, buses,
+//! the tasks that feed the loop), the loop (`Bridge::serve`: one input at a time into the
 //! core, then its outputs out: goals to the buses, messages to the links' writers, the view),
-//! and shutdown ([`Bridge::stop`]). The links' readers and writers are in [`links`].
+//! and shutdown (`Bridge::stop`). The links' readers and writers are in `links`.
 //!
 //! All decisions live in [`BridgeCore`] and [`crate::bus::BusMaster`]; this module only moves
 //! data and waits.

@@ -6,7 +6,7 @@
 //! stamped with the instant `read()` returned, before anything else is done with them.
 //!
 //! A thread woken from `ppoll` runs some tens of µs after its timeout on a loaded or virtual machine. The
-//! last byte of a reply is what the host waits for, so the thread wakes [`SPIN_AHEAD`] before it is due
+//! last byte of a reply is what the host waits for, so the thread wakes `SPIN_AHEAD` before it is due
 //! and spins until the instant, as a UART would hand it over when its stop bit ends. The first byte of
 //! a reply is written at its own instant and the bytes between with the last
 //! ([`BusModel::next_wake`]): the host waits for the whole reply, not for each byte, and a wake-up per
