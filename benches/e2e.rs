@@ -30,7 +30,9 @@
 //!   message's goal went out first) counted apart, and goals lost;
 //! - the telemetry rate per servo seen by a ground station (`<label>_pos` NAMED_VALUE_FLOAT);
 //! - the bridge process's CPU time per second of run, and its peak resident memory ("not
-//!   measured" where /proc cannot be read);
+//!   measured" where /proc cannot be read); the CPU split by thread (`main/bus/rest`: the
+//!   MAVLink loop, the bus threads, the flight record's and the mapping file's writers) and
+//!   the main and bus threads' wake-ups a second (`wk/s m/b`: voluntary context switches);
 //! - talk-overs (a packet written while a servo replied; "(N sim)": of them, N where the
 //!   simulator read a packet together with a request before it, i.e. its thread was not run for
 //!   the reply allowance while the bridge timed the first out) and STATUSTEXTs of severity WARNING or
@@ -39,7 +41,9 @@
 //! Every message gives servo 1 a goal that no other message in the window has, so each message
 //! is matched to the packet that carried it. Run: `cargo bench --bench e2e` (`E2E_SECONDS=N`
 //! sets the length of each case, default 6 s; `E2E_CASES=4x50,8x400` runs only those cases;
-//! `E2E_BRIDGE=path` runs another build of the bridge, e.g. the code before a change).
+//! `E2E_BRIDGE=path` runs another build of the bridge, e.g. the code before a change;
+//! `E2E_GCS_HZ` sets the ground station's NAMED_VALUE_FLOAT rate, `[telemetry] rate_hz`,
+//! default 20 as in every earlier run of this bench; the bridge's own default is 1).
 
 use lj9da_bridge::config::Config;
 use lj9da_bridge::mavlink::outputs::servo_output_raw;
@@ -174,6 +178,9 @@ struct Outcome {
     telemetry_hz: f64,
     /// `None` where /proc could not be read.
     cpu_percent: Option<f64>,
+    /// Per part of the process (main thread, bus threads, the rest): CPU % of a core and
+    /// wake-ups a second (see [`thread_split`]).
+    threads: Option<[(f64, f64); 3]>,
     peak_rss_kib: Option<u64>,
     collisions: usize,
     /// Of them, those the simulator's starved thread caused (see `starved` in `run_case`).
@@ -244,9 +251,10 @@ fn mapping(case: &Case, port: &str, ap: u16, gcs: u16) -> String {
             Err(_) => format!("telemetry_hz = \"{t}\"\n"),
         })
         .unwrap_or_default();
+    let gcs_hz = std::env::var("E2E_GCS_HZ").unwrap_or_else(|_| "20".into());
     let mut s = format!(
         "[mavlink]\nconnection = \"udpin:127.0.0.1:{ap}\"\ngcs = \"udpout:127.0.0.1:{gcs}\"\nautopilot_system_id = 1\nfailsafe_timeout_ms = 3000\n\
-         [telemetry]\nrate_hz = 20\n[bridge]\non_exit = \"hold\"\n[[bus]]\nname = \"b\"\nport = \"{port}\"\nbaud = {baud}\n{telemetry}"
+         [telemetry]\nrate_hz = {gcs_hz}\n[bridge]\non_exit = \"hold\"\n[[bus]]\nname = \"b\"\nport = \"{port}\"\nbaud = {baud}\n{telemetry}"
     );
     for i in 1..=servos {
         let channel = if ports == 2 && i == servos { 17 } else { i };
@@ -285,6 +293,45 @@ fn cpu_and_rss(pid: u32) -> (Option<f64>, Option<u64>) {
                 .and_then(|v| v.split_whitespace().next()?.parse().ok())
         });
     (cpu, rss)
+}
+
+/// Per thread of `pid`, CPU seconds (`schedstat`) and voluntary context switches (wake-ups), summed into the
+/// main thread (the MAVLink loop), the bus threads (`bus <name>`) and
+/// the rest (the flight record's writer and the mapping file's); `None` where /proc does not
+/// tell.
+fn thread_split(pid: u32) -> Option<[(f64, u64); 3]> {
+    let mut split = [(0.0, 0u64); 3];
+    for task in std::fs::read_dir(format!("/proc/{pid}/task"))
+        .ok()?
+        .flatten()
+    {
+        let dir = task.path();
+        let comm = std::fs::read_to_string(dir.join("comm")).ok()?;
+        // Time on a CPU in ns (the scheduler's own count: finer than stat's 10 ms ticks).
+        let ran_ns: f64 = std::fs::read_to_string(dir.join("schedstat"))
+            .ok()?
+            .split_whitespace()
+            .next()?
+            .parse()
+            .ok()?;
+        let wakeups: u64 = std::fs::read_to_string(dir.join("status"))
+            .ok()?
+            .lines()
+            .find_map(|l| l.strip_prefix("voluntary_ctxt_switches:"))?
+            .trim()
+            .parse()
+            .ok()?;
+        let k = if dir.file_name().and_then(|n| n.to_str()) == Some(&pid.to_string()) {
+            0
+        } else if comm.starts_with("bus ") {
+            1
+        } else {
+            2
+        };
+        split[k].0 += ran_ns / 1e9;
+        split[k].1 += wakeups;
+    }
+    Some(split)
 }
 
 /// The PWM of servo `s` in message `i`: servo 1 (port 0) and the servo on port 1 walk through
@@ -380,6 +427,7 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
     }
     while events.try_recv().is_ok() {}
     let (cpu0, _) = cpu_and_rss(pid);
+    let split0 = thread_split(pid);
     let t_start = Instant::now();
 
     let schedule = schedule(case, seconds, Instant::now() + Duration::from_millis(20));
@@ -407,6 +455,7 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
     std::thread::sleep(Duration::from_millis(300));
     let run_time = t_start.elapsed().as_secs_f64();
     let (cpu1, rss) = cpu_and_rss(pid);
+    let split1 = thread_split(pid);
 
     // Long packets seen by the simulated servos: (first byte instant, each marker's goal);
     // requests on the wire: (first byte, end of the reply or of the request); reads of
@@ -571,6 +620,15 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
         servo1_ok_hz: servo1_ok as f64 / run_time,
         telemetry_hz,
         cpu_percent: cpu0.zip(cpu1).map(|(a, b)| (b - a) / run_time * 100.0),
+        threads: split0.zip(split1).map(|(a, b)| {
+            let per = |k: usize| {
+                (
+                    (b[k].0 - a[k].0) / run_time * 100.0,
+                    b[k].1.saturating_sub(a[k].1) as f64 / run_time,
+                )
+            };
+            [per(0), per(1), per(2)]
+        }),
         peak_rss_kib: rss,
         collisions: collisions.len(),
         collisions_sim_starved: collisions
@@ -714,7 +772,7 @@ fn main() {
     );
     println!("bridge: {}", bridge_exe().to_string_lossy());
     println!(
-        "{:<16} {:>4} {:>5} {:>7} {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>7} {:>7} {:>6} {:>6} {:>6} {:>6} {:>4} {:>11} {:>6}",
+        "{:<16} {:>4} {:>5} {:>7} {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>7} {:>7} {:>6} {:>6} {:>6} {:>6} {:>16} {:>9} {:>11} {:>6}",
         "case",
         "hogs",
         "sent",
@@ -734,7 +792,8 @@ fn main() {
         "telem",
         "CPU %",
         "RSS M",
-        "",
+        "main/bus/rest %",
+        "wk/s m/b",
         "talk",
         "alarms"
     );
@@ -816,7 +875,7 @@ fn main() {
             )
         };
         println!(
-            "{:<16} {:>4} {:>5} {:>6.1}% {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>6.1}% {:>7.1} {:>6.1} {:>6.1} {:>6} {:>6} {:>4} {:>11} {:>6}",
+            "{:<16} {:>4} {:>5} {:>6.1}% {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>6.1}% {:>7.1} {:>6.1} {:>6.1} {:>6} {:>6} {:>16} {:>9} {:>11} {:>6}",
             format!("{} {}", case.name(), case.scenario.name()),
             case.hogs,
             o.sent,
@@ -838,7 +897,14 @@ fn main() {
                 .map_or("n/m".to_string(), |c| format!("{c:.2}")),
             o.peak_rss_kib
                 .map_or("n/m".to_string(), |r| format!("{:.1}", r as f64 / 1024.0)),
-            "",
+            o.threads.map_or("n/m".to_string(), |t| format!(
+                "{:.2}/{:.2}/{:.2}",
+                t[0].0, t[1].0, t[2].0
+            )),
+            o.threads.map_or("n/m".to_string(), |t| format!(
+                "{:.0}/{:.0}",
+                t[0].1, t[1].1
+            )),
             if o.collisions_sim_starved > 0 {
                 format!("{} ({} sim)", o.collisions, o.collisions_sim_starved)
             } else {

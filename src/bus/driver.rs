@@ -455,17 +455,32 @@ impl BusHandle {
     }
 
     fn write_goals(&self, output_message: bool, goals: impl IntoIterator<Item = (ServoId, Goal)>) {
+        self.pass_goals([(output_message, goals)]);
+    }
+
+    /// Several batches of goals that arrived together, in order, under one lock: each is an
+    /// autopilot output message (`true`, as [`BusHandle::output_message`]) or goals no message
+    /// brought (`false`, as [`BusHandle::set_goals`]). What each makes due is written before
+    /// the next is taken; the bus thread is woken at most once, after the last, and only when
+    /// it must re-arm. (Woken after the first message of a tick whose second is already in
+    /// hand, it would only wait for the lock while the second is handled.)
+    pub fn pass_goals<G>(&self, batches: impl IntoIterator<Item = (bool, G)>)
+    where
+        G: IntoIterator<Item = (ServoId, Goal)>,
+    {
         let shared = &self.owners.shared;
         let mut core = shared.core();
-        let now = Instant::now();
-        if output_message {
-            core.master.output_message(now);
+        for (output_message, goals) in batches {
+            let now = Instant::now();
+            if output_message {
+                core.master.output_message(now);
+            }
+            for (id, goal) in goals {
+                core.master.set_goal(id, goal, now);
+            }
+            core.flush();
         }
-        for (id, goal) in goals {
-            core.master.set_goal(id, goal, now);
-        }
-        core.flush();
-        // The write is done; the bus thread is woken only when it must re-arm.
+        // The writes are done; the bus thread is woken only when it must re-arm.
         if core.driver_must_wake() {
             shared.wake(core);
         }

@@ -3,8 +3,8 @@
 //! between [`BridgeCore`] and the bus drivers, and stops cleanly on request.
 //!
 //! A run has three parts: start-up (`Bridge::start`: links, signing, flight record, buses,
-//! the tasks that feed the loop), the loop (`Bridge::serve`: one input at a time into the
-//! core, then its outputs out: goals to the buses, messages to the links' writers, the view),
+//! the tasks that feed the loop), the loop (`Bridge::serve`: one input, and the messages
+//! already waiting behind it, into the core, then its outputs out: goals to the buses, messages to the links' writers, the view),
 //! and shutdown (`Bridge::stop`). The links' readers and writers are in `links`.
 //!
 //! All decisions live in [`BridgeCore`] and [`crate::bus::BusMaster`]; this module only moves
@@ -34,6 +34,13 @@ use std::path::PathBuf;
 use std::time::Instant;
 use thiserror::Error;
 use tokio::sync::{mpsc, watch};
+
+/// Per bus, the goals of the inputs of one turn of the loop, in order: `(is an output
+/// message, its goals)` (see [`BusHandle::pass_goals`]).
+type GoalBatches = Vec<(bool, Vec<(ServoId, crate::bus::Goal)>)>;
+
+/// At most this many messages already waiting are taken after an input, in the same turn.
+const READY_MESSAGES: usize = 8;
 
 /// How often the view is refreshed at most.
 const VIEW_PERIOD: std::time::Duration = std::time::Duration::from_millis(50);
@@ -498,7 +505,8 @@ impl Bridge {
         })
     }
 
-    /// The loop: one input into the core, then everything it has to say out, until `stop`.
+    /// The loop: one input (and the messages already waiting) into the core, then everything
+    /// it has to say out, until `stop`.
     async fn serve(&mut self, mut stop: watch::Receiver<bool>) {
         loop {
             match self.next_input(&mut stop).await {
@@ -526,8 +534,25 @@ impl Bridge {
                     self.core.handle_timeout(Instant::now(), &reports);
                 }
             }
+            let mut goals = vec![Vec::new(); self.buses.handles.len()];
+            self.collect_goals(&mut goals);
+            // Messages already waiting are taken in this turn (a few at most, without waiting):
+            // the messages of one autopilot tick that arrived together then reach each bus
+            // under one lock, and its thread is woken once at most.
+            for _ in 0..READY_MESSAGES {
+                let Ok((link, header, msg)) = self.messages.try_recv() else {
+                    break;
+                };
+                self.core
+                    .handle_message(link, &header, &msg, Instant::now());
+                self.collect_goals(&mut goals);
+            }
             self.pass_param_sets();
-            self.pass_goals();
+            for (handle, batches) in self.buses.handles.iter().zip(goals) {
+                if !batches.is_empty() {
+                    handle.pass_goals(batches);
+                }
+            }
             self.pass_messages();
             for note in self.core.take_notes() {
                 tracing::warn!("{note}");
@@ -569,11 +594,11 @@ impl Bridge {
         }
     }
 
-    /// The goals of the input just handled, one call per bus: an output message that carried
-    /// a bus's servos is a tick of that bus's rhythm even when it changed no goal, and its
-    /// goals leave in one long packet.
-    fn pass_goals(&mut self) {
-        let mut per_bus: Vec<Vec<(ServoId, crate::bus::Goal)>> =
+    /// The goals of the input just handled, per bus: an output message that carried a bus's
+    /// servos is a tick of that bus's rhythm even when it changed no goal (`true`), and its
+    /// goals leave in one long packet; goals no message brought are `false`.
+    fn collect_goals(&mut self, per_bus: &mut [GoalBatches]) {
+        let mut goals: Vec<Vec<(ServoId, crate::bus::Goal)>> =
             vec![Vec::new(); self.buses.handles.len()];
         let mut ticked = vec![false; self.buses.handles.len()];
         for servo in self.core.take_output_ticks() {
@@ -583,18 +608,15 @@ impl Bridge {
         }
         while let Some((servo, goal)) = self.core.poll_command() {
             if let Some((bus, id)) = self.buses.servo_at.get(servo) {
-                per_bus[*bus].push((*id, goal));
+                goals[*bus].push((*id, goal));
             }
             if let Some(r) = &self.record {
                 r.goal(servo, goal);
             }
         }
-        for (bus, goals) in per_bus.into_iter().enumerate() {
-            let handle = &self.buses.handles[bus];
-            if ticked[bus] {
-                handle.output_message(goals);
-            } else if !goals.is_empty() {
-                handle.set_goals(goals);
+        for ((batches, goals), ticked) in per_bus.iter_mut().zip(goals).zip(ticked) {
+            if ticked || !goals.is_empty() {
+                batches.push((ticked, goals));
             }
         }
     }
