@@ -4,8 +4,9 @@
 //!
 //! A run has three parts: start-up (`Bridge::start`: links, signing, flight record, buses,
 //! the tasks that feed the loop), the loop (`Bridge::serve`: one input, and the messages
-//! already waiting behind it, into the core, then its outputs out: goals to the buses, messages to the links' writers, the view),
-//! and shutdown (`Bridge::stop`). The links' readers and writers are in `links`.
+//! already waiting behind it, into the core, then its outputs out: goals to the buses,
+//! messages to the links' writers, the view), and shutdown (`Bridge::stop`). The links'
+//! readers and writers are in `links`.
 //!
 //! All decisions live in [`BridgeCore`] and [`crate::bus::BusMaster`]; this module only moves
 //! data and waits.
