@@ -16,8 +16,8 @@ use common::{Chain, ChainOptions, free_udp_port};
 use lj9da_bridge::mavlink::signing::{Signed, Signing, SigningKey};
 use lj9da_bridge::runtime::MAPPING_WRITE_SPACING;
 use mavlink::dialects::common::{
-    HEARTBEAT_DATA, MavAutopilot, MavMessage, MavParamType, MavType, PARAM_SET_DATA,
-    SERVO_OUTPUT_RAW_DATA,
+    HEARTBEAT_DATA, MavAutopilot, MavMessage, MavParamType, MavType, PARAM_REQUEST_READ_DATA,
+    PARAM_SET_DATA, SERVO_OUTPUT_RAW_DATA,
 };
 use mavlink::{MAVLinkMessageRaw, MAVLinkV2MessageRaw, MavHeader, MavlinkReader, Message};
 use std::path::PathBuf;
@@ -164,6 +164,22 @@ impl Peer {
         self.send_bytes(port, &bytes).await;
     }
 
+    /// Send a HEARTBEAT and neutral outputs every 50 ms, as an autopilot keeps sending them,
+    /// until the bridge has found this autopilot. (The bridge starts in a task of its own and
+    /// may bind its port only after a first datagram was sent: one datagram alone may be lost.)
+    async fn announce(&mut self, port: u16, chain: &Chain) {
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while chain.view.borrow().autopilot != Some(self.ids) {
+            assert!(
+                Instant::now() < deadline,
+                "the bridge never found the autopilot"
+            );
+            self.send(port, &heartbeat()).await;
+            self.send(port, &outputs(1520)).await;
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+
     fn heard(&self) -> Vec<(MavHeader, MavMessage, bool)> {
         self.heard.lock().unwrap().clone()
     }
@@ -247,13 +263,7 @@ async fn a_signed_frame_replayed_on_the_ground_station_link_is_dropped_and_moves
     let chain = Chain::start_opts(&mapping(true, "replay"), opts).await;
     let port = chain.autopilot_port;
     let mut ap = Peer::new(AP, true).await;
-    ap.send(port, &heartbeat()).await;
-    ap.send(port, &outputs(1520)).await;
-    chain
-        .wait_view("the autopilot", Duration::from_secs(20), |v| {
-            v.autopilot == Some(AP)
-        })
-        .await;
+    ap.announce(port, &chain).await;
     wait_goal(&chain, 0.0).await;
     // A frame of the autopilot's on its link, captured there.
     let captured = ap.frame(&outputs(1900));
@@ -282,7 +292,7 @@ async fn unsigned_datagrams_from_a_stranger_do_not_take_the_signed_peers_replies
     let mut ap = Peer::new(AP, true).await;
     let first_heartbeat = ap.frame(&heartbeat());
     ap.send_bytes(port, &first_heartbeat).await;
-    ap.send(port, &outputs(1520)).await;
+    ap.announce(port, &chain).await;
     ap.wait_for("the bridge's HEARTBEAT", |h| {
         h.iter()
             .any(|(hd, m, _)| hd.component_id == BRIDGE.1 && matches!(m, MavMessage::HEARTBEAT(_)))
@@ -388,12 +398,7 @@ async fn a_burst_of_a_thousand_param_sets_writes_the_file_a_bounded_number_of_ti
     let chain = Chain::start_opts(&text, opts).await;
     let port = chain.autopilot_port;
     let mut ap = Peer::new(AP, false).await;
-    ap.send(port, &heartbeat()).await;
-    chain
-        .wait_view("the autopilot", Duration::from_secs(20), |v| {
-            v.autopilot == Some(AP)
-        })
-        .await;
+    ap.announce(port, &chain).await;
     let set = |name: &str, value: f32| {
         MavMessage::PARAM_SET(PARAM_SET_DATA {
             param_value: value,
@@ -411,6 +416,31 @@ async fn a_burst_of_a_thousand_param_sets_writes_the_file_a_bounded_number_of_ti
         gcs.send(port, &set("S1_PWM_TRIM", trim)).await;
         gcs.send(port, &set("S1_PWM_MAX", 2100.0 + f32::from(i % 9)))
             .await;
+    }
+    // The bridge takes messages in the order they came: its answer to a read sent after the
+    // burst says it has taken the whole burst in. (On a busy machine that is later than the
+    // last send; the writes are bounded over the time the bridge had the sets.) The read is
+    // sent again, as a ground station does, when the burst filled the socket's buffer and
+    // the kernel dropped it.
+    let read = MavMessage::PARAM_REQUEST_READ(PARAM_REQUEST_READ_DATA {
+        param_index: -1,
+        target_system: 1,
+        target_component: BRIDGE.1,
+        param_id: "S1_PWM_MIN".into(),
+    });
+    let answered = |h: &[(MavHeader, MavMessage, bool)]| {
+        h.iter().any(|(_, m, _)| {
+            matches!(m, MavMessage::PARAM_VALUE(v) if v.param_id.to_str().is_ok_and(|id| id == "S1_PWM_MIN"))
+        })
+    };
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !answered(&gcs.heard()) {
+        assert!(
+            Instant::now() < deadline,
+            "no answer to a read after the burst"
+        );
+        gcs.send(port, &read).await;
+        tokio::time::sleep(Duration::from_millis(20)).await;
     }
     let burst = burst_start.elapsed();
     // The last values, as a ground station that heard no answer sends them again.
@@ -438,10 +468,14 @@ async fn a_burst_of_a_thousand_param_sets_writes_the_file_a_bounded_number_of_ti
     }
     tokio::time::sleep(Duration::from_millis(500)).await;
     // One write under way when the burst starts, then at most one per parameter and per
-    // write spacing the burst lasts, and one per parameter for what waits at its end.
+    // write spacing the burst lasts (until the bridge had taken it all in), one per
+    // parameter for what waits at its end, and one per parameter for the values sent again:
+    // a burst this fast overflows the socket's receive buffer (the kernel dropped 48–390 of
+    // the 1 000 datagrams in ten runs here), and when the burst's own last values were among
+    // them, the file holds earlier ones until the values sent again arrive.
     let writes = chain.view.borrow().mapping_writes;
     let spacings = (burst.as_secs_f64() / MAPPING_WRITE_SPACING.as_secs_f64()).ceil() as u64;
-    let bound = 1 + 2 * spacings + 2;
+    let bound = 1 + 2 * spacings + 2 + 2;
     assert!(
         (2..=bound).contains(&writes),
         "{writes} writes of the mapping file for 1 000 sets on two parameters in {burst:?} (at most {bound})"
