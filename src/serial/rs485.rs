@@ -279,11 +279,6 @@ impl Rs485Request {
         }
     }
 
-    /// The mode asked for.
-    pub fn mode(&self) -> Rs485Mode {
-        self.mode
-    }
-
     /// Set the mode on `fd`, the just-opened `port`. A refusal is logged as an error with what
     /// to check and returned as the reason the port cannot be used; a driver that changed the
     /// mode is reported with what was asked and what was granted.
@@ -476,7 +471,6 @@ mod tests {
         let pty = nix::pty::openpty(None, None).unwrap();
         let path = nix::unistd::ttyname(&pty.slave).unwrap();
         let mut request = Rs485Request::new("wing", Rs485Mode::default());
-        assert_eq!(request.mode(), Rs485Mode::default());
         for _ in 0..2 {
             let reason = request.apply(&path, pty.slave.as_fd()).unwrap_err();
             assert!(reason.contains("refuses RS485 mode"), "{reason}");
