@@ -7,7 +7,9 @@
 //! thread to wake first), and by the bus thread when a reply completes, when a deadline
 //! passes, or when [`BusHandle::set_goal`] woke it (goals set one by one meanwhile share one
 //! long packet). Order on the wire is the order of the lock; the bus master alone decides what
-//! may be sent (never while a reply is pending).
+//! may be sent (never while a reply is pending). A caller whose writes make the bus master's
+//! next deadline come sooner (a request written behind the frame, whose reply is to be read)
+//! sets the bus thread's timer (a timerfd) instead of waking it; the thread wakes once, then.
 //!
 //! The bus thread reads the port when the bus master says a reply should be there, not on
 //! every byte: it sleeps until the bus master's next deadline or until the awaited reply should
@@ -35,13 +37,16 @@ use crate::protocol::{BaudRate, ServoId};
 use crate::serial::rs485::Rs485Request;
 use nix::fcntl::{FcntlArg, OFlag, fcntl};
 use nix::poll::{PollFd, PollFlags, ppoll};
+use nix::sys::eventfd::{EfdFlags, EventFd};
 use nix::sys::termios::{SetArg, SpecialCharacterIndices, Termios, tcdrain, tcgetattr, tcsetattr};
 use nix::sys::time::TimeSpec;
+use nix::sys::timer::{Expiration, TimerSetTimeFlags};
+use nix::sys::timerfd::{ClockId, TimerFd, TimerFlags};
 use std::fs::File;
 use std::io::{Read, Write};
 use std::os::fd::{AsFd, AsRawFd, FromRawFd, IntoRawFd};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, watch};
 use tokio_serial::{DataBits, FlowControl, Parity, StopBits};
@@ -232,10 +237,12 @@ struct Core {
     port: Option<File>,
     /// Why the last write failed; the bus thread then treats the port as lost.
     write_error: Option<String>,
-    /// The instant the bus thread sleeps until (its next look at the bus master).
+    /// The instant the bus thread next looks at the bus master unless the bell wakes it
+    /// first: the end of its own wait, or [`Wakers::timer`] where another thread brought it
+    /// forward. `None` while the thread is awake: it looks at the bus master before it sleeps.
     armed: Option<Instant>,
-    /// The bus thread has something to look at (a goal, a shutdown).
-    woken: bool,
+    /// [`Wakers::timer`] is set (by a thread that wrote and brought `armed` forward).
+    timer_set: bool,
     late_wakeups: LateWakeups,
 }
 
@@ -321,31 +328,68 @@ impl Core {
         }
     }
 
-    /// Whether the bus thread must look again after another thread wrote: the port failed, or
-    /// the bus master's deadline (or the look at a reply it now awaits) comes before the
-    /// instant the thread sleeps until. A later deadline needs no wake-up: the thread wakes at
-    /// the old one, finds nothing due and sleeps again. (On an idle bus, a goal's frame is
-    /// written by the caller and the thread is left asleep: waking it would take a CPU from the
-    /// simulator, or the kernel's tty worker, that should pass the frame on.)
-    fn driver_must_wake(&self) -> bool {
+    /// After another thread wrote: whether the bus thread must be woken now (the port failed).
+    /// Otherwise, when the bus master's deadline (or the look at a reply it now awaits) comes
+    /// before the instant the thread sleeps until, the timer is set to it, and the thread
+    /// wakes then, not now. A later deadline needs nothing: the thread wakes at the old one,
+    /// finds nothing due and sleeps again. (A goal's frame is written by the caller; waking
+    /// the thread as well would take a CPU from the simulator, or the kernel's tty worker,
+    /// that should pass the frame on.)
+    fn after_write(&mut self, timer: &TimerFd) -> bool {
+        if self.write_error.is_some() {
+            return true;
+        }
         let next = [self.master.poll_timeout(), self.master.reply_look_at()]
             .into_iter()
             .flatten()
             .min();
-        self.write_error.is_some()
-            || match (next, self.armed) {
-                (Some(next), Some(armed)) => next < armed,
-                (Some(_), None) => true,
-                (None, _) => false,
+        if let (Some(next), Some(armed)) = (next, self.armed)
+            && next < armed
+        {
+            let left = next.saturating_duration_since(Instant::now());
+            // A zero expiry would disarm the timer.
+            let left = TimeSpec::from_duration(left.max(Duration::from_nanos(1)));
+            if timer
+                .set(Expiration::OneShot(left), TimerSetTimeFlags::empty())
+                .is_err()
+            {
+                // Never seen; the bell does the timer's work, a wake-up sooner.
+                return true;
             }
+            self.armed = Some(next);
+            self.timer_set = true;
+        }
+        false
     }
 }
 
 /// What the bus thread and every [`BusHandle`] share.
 struct Shared {
     core: Mutex<Core>,
-    /// Signalled with [`Core::woken`] set when the bus master changed under the bus thread.
-    wake: Condvar,
+    /// The bus thread's wake-ups (`None`: they could not be made, and the thread never ran).
+    wakers: Option<Wakers>,
+}
+
+/// What ends the bus thread's wait besides the port, without the core.
+struct Wakers {
+    /// Rung when the bus thread must look at once (a goal set alone, a shutdown, a failed
+    /// write): an eventfd.
+    bell: EventFd,
+    /// Fires at [`Core::armed`] when a thread that wrote brought it forward: a timerfd, set
+    /// without waking the bus thread.
+    timer: TimerFd,
+}
+
+impl Wakers {
+    fn new() -> nix::Result<Self> {
+        Ok(Wakers {
+            bell: EventFd::from_flags(EfdFlags::EFD_NONBLOCK | EfdFlags::EFD_CLOEXEC)?,
+            timer: TimerFd::new(
+                ClockId::CLOCK_MONOTONIC,
+                TimerFlags::TFD_NONBLOCK | TimerFlags::TFD_CLOEXEC,
+            )?,
+        })
+    }
 }
 
 impl Shared {
@@ -356,34 +400,67 @@ impl Shared {
     }
 
     /// Wake the bus thread, letting go of the core it is handed.
-    fn wake(&self, mut core: MutexGuard<'_, Core>) {
-        core.woken = true;
+    fn ring(&self, core: MutexGuard<'_, Core>) {
         drop(core);
-        self.wake.notify_one();
+        if let Some(wakers) = &self.wakers {
+            // An eventfd write fails only when its counter would overflow: it is rung already.
+            let _ = wakers.bell.write(1);
+        }
     }
 
-    /// Sleep until `until`, or until woken; returns the core locked again. A wake-up more than
-    /// [`LATE_WAKEUP`] after `until` is counted.
-    fn sleep<'a>(&'a self, mut core: MutexGuard<'a, Core>, until: Instant) -> MutexGuard<'a, Core> {
-        let mut slept = false;
-        while !core.woken {
-            let Some(left) = until
-                .checked_duration_since(Instant::now())
-                .filter(|d| !d.is_zero())
-            else {
-                break;
-            };
-            slept = true;
-            core = match self.wake.wait_timeout(core, left) {
-                Ok((core, _)) => core,
-                Err(poisoned) => poisoned.into_inner().0,
-            };
+    /// After another thread wrote: ring the bell when the port failed, otherwise see that the
+    /// bus thread looks in time without waking it now ([`Core::after_write`]).
+    fn after_write(&self, mut core: MutexGuard<'_, Core>) {
+        let Some(wakers) = &self.wakers else {
+            return;
+        };
+        if core.after_write(&wakers.timer) {
+            self.ring(core);
         }
-        let late = Instant::now().saturating_duration_since(until);
-        if slept && !core.woken && late > LATE_WAKEUP {
+    }
+
+    /// Sleep until `until` (or the earlier instant armed meanwhile), until the bell rings or
+    /// until the timer fires; returns the core locked again (it is not held meanwhile). A
+    /// wake-up more than [`LATE_WAKEUP`] after the instant armed is counted.
+    fn sleep<'a>(
+        &'a self,
+        wakers: &Wakers,
+        mut core: MutexGuard<'a, Core>,
+        until: Instant,
+    ) -> MutexGuard<'a, Core> {
+        if std::mem::take(&mut core.timer_set) {
+            // Disarmed before the wait: a timer left set would end a later one for nothing.
+            let _ = wakers.timer.unset();
+        }
+        // A thread that wrote since `until` was chosen may have brought it forward.
+        let until = core.armed.map_or(until, |armed| armed.min(until));
+        core.armed = Some(until);
+        drop(core);
+        let mut fds = [
+            PollFd::new(wakers.bell.as_fd(), PollFlags::POLLIN),
+            PollFd::new(wakers.timer.as_fd(), PollFlags::POLLIN),
+        ];
+        let mut rung = false;
+        let mut slept = false;
+        if let Some(left) = until
+            .checked_duration_since(Instant::now())
+            .filter(|d| !d.is_zero())
+        {
+            slept = true;
+            let _ = ppoll(&mut fds, Some(TimeSpec::from_duration(left)), None);
+            rung = fds[0].revents().is_some_and(|r| !r.is_empty());
+            if rung {
+                let _ = wakers.bell.read();
+            }
+        }
+        let now = Instant::now();
+        let mut core = self.core();
+        // Awake: the thread looks at the bus master before it sleeps again.
+        let armed = core.armed.take().unwrap_or(until);
+        let late = now.saturating_duration_since(armed);
+        if slept && !rung && late > LATE_WAKEUP {
             core.late_wakeup(late);
         }
-        core.woken = false;
         core
     }
 }
@@ -398,7 +475,7 @@ impl Drop for Owners {
         let mut core = self.shared.core();
         core.master.shutdown(ShutdownForce::AsIs);
         core.flush();
-        self.shared.wake(core);
+        self.shared.ring(core);
     }
 }
 
@@ -436,7 +513,7 @@ impl BusHandle {
         let shared = &self.owners.shared;
         let mut core = shared.core();
         core.master.set_goal(id, goal, Instant::now());
-        shared.wake(core);
+        shared.ring(core);
     }
 
     /// One output message of the autopilot arrived, with the goals it changed (none when it
@@ -480,10 +557,8 @@ impl BusHandle {
             }
             core.flush();
         }
-        // The writes are done; the bus thread is woken only when it must re-arm.
-        if core.driver_must_wake() {
-            shared.wake(core);
-        }
+        // The writes are done; the bus thread is woken only when the port failed.
+        shared.after_write(core);
     }
 
     /// The latest status the bus thread published.
@@ -510,7 +585,7 @@ impl BusHandle {
             let mut core = shared.core();
             core.master.shutdown(leave);
             core.flush();
-            shared.wake(core);
+            shared.ring(core);
         }
         let mut finished = self.finished.clone();
         let _ = finished.wait_for(|done| *done).await;
@@ -538,16 +613,20 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
     let (status_tx, status_rx) = watch::channel(master.status());
     let (event_tx, _) = broadcast::channel(EVENT_CAPACITY);
     let (finished_tx, finished_rx) = watch::channel(false);
+    let wakers = Wakers::new();
+    if let Err(e) = &wakers {
+        tracing::error!(bus = %name, "bus thread cannot start: no eventfd or timerfd: {e}");
+    }
     let shared = Arc::new(Shared {
         core: Mutex::new(Core {
             master,
             port: None,
             write_error: None,
             armed: None,
-            woken: false,
+            timer_set: false,
             late_wakeups: LateWakeups::default(),
         }),
-        wake: Condvar::new(),
+        wakers: wakers.ok(),
     });
     let driver = Driver {
         name: name.clone(),
@@ -560,11 +639,13 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
         finished: finished_tx,
         published_at: Instant::now(),
     };
-    let spawned = std::thread::Builder::new()
-        .name(format!("bus {name}"))
-        .spawn(move || driver.run());
-    if let Err(e) = spawned {
-        tracing::error!(bus = %name, "bus thread cannot start: {e}");
+    if shared.wakers.is_some() {
+        let spawned = std::thread::Builder::new()
+            .name(format!("bus {name}"))
+            .spawn(move || driver.run());
+        if let Err(e) = spawned {
+            tracing::error!(bus = %name, "bus thread cannot start: {e}");
+        }
     }
     BusHandle {
         name,
@@ -625,6 +706,10 @@ struct Driver {
 
 impl Driver {
     fn run(mut self) {
+        let shared = Arc::clone(&self.shared);
+        let Some(wakers) = shared.wakers.as_ref() else {
+            return;
+        };
         if let Err(e) = nix::sys::prctl::set_timerslack(TIMER_SLACK_NS) {
             tracing::debug!(bus = %self.name, "timer slack stays at its default: {e}");
         }
@@ -656,7 +741,7 @@ impl Driver {
                         core.write_error = None;
                         core.port = Some(port);
                     }
-                    let exit = self.serve(waiter);
+                    let exit = self.serve(wakers, waiter);
                     let mut core = self.shared.core();
                     core.port = None;
                     match exit {
@@ -678,7 +763,7 @@ impl Driver {
                 break;
             }
             backoff = reopen.after(backoff);
-            if self.wait_offline(backoff) {
+            if self.wait_offline(wakers, backoff) {
                 break;
             }
         }
@@ -692,12 +777,12 @@ impl Driver {
     }
 
     /// Wait `wait` with the port closed, still taking goals. True when a shutdown arrived.
-    fn wait_offline(&mut self, wait: Duration) -> bool {
+    fn wait_offline(&mut self, wakers: &Wakers, wait: Duration) -> bool {
         let until = Instant::now() + wait;
         loop {
             {
                 let core = self.shared.core();
-                let mut core = self.shared.sleep(core, until);
+                let mut core = self.shared.sleep(wakers, core, until);
                 core.master.handle_timeout(Instant::now());
                 if core.master.shutdown_requested() {
                     return true;
@@ -764,7 +849,7 @@ impl Driver {
     }
 
     /// Run the bus over the open port until shutdown or until the port fails.
-    fn serve(&mut self, mut waiter: ReplyWaiter) -> Exit {
+    fn serve(&mut self, wakers: &Wakers, mut waiter: ReplyWaiter) -> Exit {
         let mut buf = [0u8; 512];
         loop {
             let (wake_at, reply_wait, wire_idle_at) = {
@@ -838,7 +923,7 @@ impl Driver {
                 continue;
             }
             let core = self.shared.core();
-            drop(self.shared.sleep(core, wake_at));
+            drop(self.shared.sleep(wakers, core, wake_at));
         }
     }
 }
