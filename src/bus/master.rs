@@ -20,9 +20,11 @@
 //! 4. while a goal is expected too soon for any of those, a read of one position (42–43).
 //!
 //! Requests (2–4) wait while the autopilot's tick is still coming in (`tick_gather` after its
-//! first goal, and, while the goals keep a rhythm, until every servo commanded in the previous
-//! tick has its goal), and start only if they end before the next tick is expected
-//! ([`GoalRhythm`]): the messages of one tick all reach the wire before the next poll.
+//! first goal, and, while the goals keep a rhythm, until the tick has had as many messages as
+//! the one before it, which also ends the wait at once), and start only if they end before the
+//! next tick is expected ([`GoalRhythm`]): the messages of one tick all reach the wire before
+//! the next poll. With a telemetry rate, the first read of a period goes out right behind the
+//! tick's long packet, written by the same caller; the others follow each reply.
 //!
 //! Besides the schedule: every [`quality::WINDOW`] each servo's share of bad replies is judged
 //! (degraded or well, see [`quality`]), and a temperature flag that changes in a reply without
@@ -119,9 +121,9 @@ pub struct BusMaster {
     changed: bool,
     /// When the servos' reply quality was last judged.
     judged_at: Instant,
-    /// Until when a periodic read may start early: the instant a reply ended, and a little
-    /// (see [`BusMaster::next_request`]).
-    chain_until: Option<Instant>,
+    /// Until when a periodic read may start early, and how early: the instant a reply ended
+    /// or a long packet was handed out, and a little (see [`BusMaster::next_request`]).
+    chain_until: Option<(Instant, Duration)>,
 }
 
 impl BusMaster {
@@ -365,7 +367,7 @@ impl BusMaster {
         }
         self.pending = None;
         self.changed = true;
-        self.chain_until = Some(now + REACTION);
+        self.chain_until = Some((now + REACTION, self.cfg.telemetry_min_interval / 4));
         self.learn_lateness(&p, now);
         self.counters.wire_busy_ns += self.cfg.baud.wire_time_ns(reply.wire_len());
         let mut events = Vec::new();
@@ -541,7 +543,18 @@ impl BusMaster {
             if self.wire_free_at > now + self.command_lead() || self.rest_of_tick(now).is_some() {
                 return None;
             }
-            return self.long_packet(now);
+            let packet = self.long_packet(now);
+            if packet.is_some() {
+                // Whoever writes the tick's frame writes a read due within half an interval
+                // behind it: the reads of a period then begin behind its tick, and one that
+                // fell behind (a read-back took its turn) comes back there. At most half the
+                // autopilot's period early: at ticks much faster than the telemetry rate,
+                // reads started early would come faster than asked.
+                let early = self.cfg.telemetry_min_interval / 2;
+                let early = self.rhythm.period().map_or(early / 2, |p| early.min(p / 2));
+                self.chain_until = Some((now + REACTION, early));
+            }
+            return packet;
         }
         let (i, tx) = self.next_request(now)?;
         if !matches!(tx, Transaction::Force(_) | Transaction::Position) {
@@ -570,16 +583,16 @@ impl BusMaster {
         {
             return Some((i, Transaction::Force(mode)));
         }
-        // Right after a reply, a periodic read due within a quarter of the telemetry interval
-        // starts now: with a telemetry rate the servos are read one after the other, each
-        // read started by the reply before it, and the bus thread wakes once per burst
-        // instead of once per read besides each reply.
-        let chained = self.chain_until.is_some_and(|until| at <= until);
-        let early = if chained {
-            self.cfg.telemetry_min_interval / 4
-        } else {
-            Duration::ZERO
-        };
+        // Right after a reply or a long packet, a periodic read due soon starts now (within a
+        // quarter of the telemetry interval after a reply, half after a long packet): with a
+        // telemetry rate the servos are read one after the other, the first written behind
+        // the tick's long packet by the thread that wrote it, each of the others started by
+        // the reply before it, and the bus thread wakes once per reply, not also to start a
+        // burst.
+        let early = self
+            .chain_until
+            .filter(|(until, _)| at <= *until)
+            .map_or(Duration::ZERO, |(_, early)| early);
         let n = self.servos.len();
         for k in 1..=n {
             let i = (self.cursor + k) % n;
@@ -628,12 +641,17 @@ impl BusMaster {
     }
 
     /// Until when, seen at `at`, no request may start because the autopilot's tick is still
-    /// coming in: the gathering window ([`BusMaster::gather_goal`]); and, while the rhythm is
-    /// known, until half a period after the tick began as long as it has had fewer messages
-    /// than the tick before (a message of the tick is late). Not after `at` when nothing holds
-    /// requests back.
+    /// coming in: the gathering window ([`BusMaster::gather_goal`]), closed as soon as the tick
+    /// has had as many messages as the tick before (while the rhythm is known); and, while the
+    /// rhythm is known, until half a period after the tick began as long as it has had fewer
+    /// messages than the tick before (a message of the tick is late). Not after `at` when
+    /// nothing holds requests back.
     fn gathering_until(&self, at: Instant) -> Instant {
-        let gather = self.gather.map_or(at, |(_, ends)| ends);
+        // A tick with as many messages as the one before it is whole: nothing is gathered.
+        let gather = match self.gather {
+            Some((_, ends)) if !self.rhythm.tick_complete(at) => ends,
+            _ => at,
+        };
         let incomplete = self.rhythm.tick(at).and_then(|(start, period)| {
             let until = start + period / 2;
             (self.rhythm.tick_incomplete(at) && at < until).then_some(until)

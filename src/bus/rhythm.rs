@@ -260,6 +260,14 @@ impl GoalRhythm {
         self.tick(now).is_some() && self.tick.count < self.previous_tick.count
     }
 
+    /// Whether the latest tick has had as many messages as the tick before it (nothing more of
+    /// it is expected), seen at `now` while the rhythm is trusted.
+    pub fn tick_complete(&self, now: Instant) -> bool {
+        self.tick(now).is_some()
+            && self.previous_tick.count > 0
+            && self.tick.count >= self.previous_tick.count
+    }
+
     /// While the latest tick, begun at most `within` ago, still lacks messages that the tick
     /// before it had within `within` of its start: when the last of them is expected (its
     /// offset in the tick before, and a little slack). `None` when nothing more is expected

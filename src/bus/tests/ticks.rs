@@ -305,3 +305,57 @@ fn a_servo_with_a_fifth_of_its_replies_garbled_keeps_most_of_its_good_replies() 
         "{garbled} good replies with 20 % garbled against {clean} clean"
     );
 }
+
+#[test]
+fn with_a_telemetry_rate_a_tick_s_frame_carries_the_first_read_behind_it_and_reads_keep_the_rate() {
+    for jitter in [0, 1000] {
+        let mut cfg = config(&[1, 2, 3, 4]);
+        cfg.telemetry_min_interval = PERIOD;
+        let (mut rig, mut messages) = warmed_up_on(cfg);
+        let from = after(&messages) + PERIOD * 10;
+        let sweep = ticks(after(&messages), 260, PERIOD, &[0, 1], jitter, |_| true);
+        let until = after(&sweep) - PERIOD * 2;
+        messages.extend(sweep);
+        drive(&mut rig, &messages);
+        let window: Vec<&Sent> = rig
+            .log
+            .iter()
+            .filter(|s| s.at >= from && s.at < until)
+            .collect();
+        // The thread that writes a tick's frame writes a request behind it in the same turn
+        // (a read, or now and then a read-back): nothing else need wake to start the period's
+        // reads.
+        let frames = window
+            .iter()
+            .filter(|s| s.tx.kind == TxKind::Command)
+            .count();
+        let carried = window
+            .windows(2)
+            .filter(|w| {
+                w[0].tx.kind == TxKind::Command
+                    && w[1].tx.kind != TxKind::Command
+                    && w[1].at == w[0].at
+            })
+            .count();
+        assert!(frames >= 240, "±{jitter} µs: {frames} frames");
+        assert!(
+            carried * 100 >= frames * 95,
+            "±{jitter} µs: {carried} of {frames} frames had a request behind them"
+        );
+        // Reads started early keep their place: each servo is read at the rate asked.
+        let seconds = (until - from).as_secs_f64();
+        for n in 1..=4 {
+            let hz = window
+                .iter()
+                .filter(
+                    |s| matches!(s.tx.kind, TxKind::Poll(i) | TxKind::MotionPoll(i) if i == id(n)),
+                )
+                .count() as f64
+                / seconds;
+            assert!(
+                (48.0..=51.0).contains(&hz),
+                "±{jitter} µs: servo {n} read at {hz:.1} Hz, 50 asked"
+            );
+        }
+    }
+}
