@@ -520,13 +520,15 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
                     }
                 }
                 if let HostPacket::Short(short) = &p.packet {
-                    // Registers 42–49 read by address, or 42–59 by the reply code 07h.
+                    // Registers 42–49 read by address, or 42–59 by reply request 09h.
                     let reads_position_and_current = match short.form() {
                         ShortForm::Request {
                             address,
                             length,
                             reply_code,
-                        } => (address == 0x2A && length >= 8) || reply_code == 0x07,
+                        } => (address == 0x2A && length >= 8) || reply_code == 0x09,
+                        // The bridge's full read: Count = 1 with no data (spec 4.1).
+                        ShortForm::Write { reply_code, .. } => reply_code == 0x09,
                         _ => false,
                     };
                     if reads_position_and_current {
