@@ -288,18 +288,26 @@ impl Core {
         }
     }
 
-    /// Read everything that has arrived and hand it to the bus master. `Err` when the port
-    /// failed (end of file: the other side hung up; or an error other than "would block").
-    fn read_input(&mut self, buf: &mut [u8], now: Instant) -> Result<(), String> {
+    /// Read everything that has arrived and hand it to the bus master, with the instant each
+    /// read returned. `Err` when the port failed (end of file: the other side hung up; or an
+    /// error other than "would block").
+    fn read_input(&mut self, buf: &mut [u8]) -> Result<(), String> {
         let Some(port) = self.port.as_mut() else {
             return Ok(());
         };
+        // A look at an awaited reply that finds fewer of its bytes than it misses came early,
+        // even when the read below waits for the kernel's worker to pass them on.
+        if let (Some(missing), Some(held)) = (self.master.bytes_awaited(), bytes_in(port))
+            && held < missing
+        {
+            self.master.note_reply_incomplete();
+        }
         loop {
             match port.read(buf) {
                 Ok(0) => return Err("end of file".into()),
                 Ok(n) => {
                     self.master
-                        .handle_input(buf.get(..n).unwrap_or_default(), now);
+                        .handle_input(buf.get(..n).unwrap_or_default(), Instant::now());
                     if n < buf.len() {
                         // The tty had no more (a later byte is read at the next look).
                         return Ok(());
@@ -838,7 +846,7 @@ impl Driver {
         loop {
             {
                 let mut core = self.shared.core();
-                core.read_input(buf, Instant::now())?;
+                core.read_input(buf)?;
                 let missing = core.master.bytes_awaited();
                 if missing.is_none() || Instant::now() >= until {
                     return Ok(missing);
@@ -858,7 +866,7 @@ impl Driver {
                 // Before the look at an awaited reply nothing need be read: its bytes wait in
                 // the tty (a read then would be a system call for nothing).
                 let too_early = core.master.reply_look_at().is_some_and(|at| now < at);
-                if !too_early && let Err(reason) = core.read_input(&mut buf, now) {
+                if !too_early && let Err(reason) = core.read_input(&mut buf) {
                     return Exit::PortLost(reason);
                 }
                 core.master.handle_timeout(now);
@@ -954,6 +962,18 @@ fn thread_usage() -> ThreadUsage {
         cpu: time(usage.ru_utime) + time(usage.ru_stime),
         wakeups: u64::try_from(usage.ru_nvcsw).unwrap_or(0),
     }
+}
+
+/// The bytes the tty holds for reading (`TIOCINQ`; `None` where it cannot tell). Unlike a
+/// read that finds nothing, it never waits for the kernel's worker to pass bytes on.
+fn bytes_in(port: &File) -> Option<usize> {
+    use nix::libc;
+    let mut held: libc::c_int = 0;
+    // SAFETY: TIOCINQ writes one c_int, into `held`, which lives across the call.
+    if unsafe { libc::ioctl(port.as_raw_fd(), libc::TIOCINQ, &mut held) } != 0 {
+        return None;
+    }
+    usize::try_from(held).ok()
 }
 
 /// Waits on the port for the last bytes of a reply, without the core locked. It holds its own

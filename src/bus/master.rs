@@ -1067,6 +1067,18 @@ impl BusMaster {
         &self.counters
     }
 
+    /// The driver found fewer bytes in the port than the awaited reply still misses, and
+    /// waits for the rest: the bytes that complete it arrive when it completed, which teaches
+    /// [`BusMaster::reply_look_at`] to look later. (A tty whose bytes are still on their way
+    /// through the kernel's worker holds the read that looks for them until they are in, and
+    /// that read then finds the reply whole: only the port's count before the read tells that
+    /// the look came early.)
+    pub fn note_reply_incomplete(&mut self) {
+        if let Some(p) = self.pending.as_mut() {
+            p.looked = true;
+        }
+    }
+
     /// Whether a reply is awaited (nothing is transmitted until it arrives or times out).
     pub fn reply_pending(&self) -> bool {
         self.pending.is_some()

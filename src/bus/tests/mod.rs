@@ -1773,6 +1773,67 @@ fn one_very_late_reply_does_not_delay_the_looks_at_the_next_ones() {
     );
 }
 
+/// Run `requests` requests through a port that passes each reply on `passed_on` after it is
+/// whole on the wire (a tty's bytes go through the kernel's worker). A look before the reply is
+/// whole finds part of it and waits for the rest; a look after that, before the port has it,
+/// is held by the read until the bytes are in and then finds the reply whole, and the bus
+/// master is told that the port held less than the reply at the look only if `tell`. Returns
+/// how many looks came before the port had the reply.
+fn looks_before_the_port_has_the_reply(
+    rig: &mut Rig,
+    requests: usize,
+    passed_on: Duration,
+    tell: bool,
+) -> usize {
+    let mut early = 0;
+    let mut sent = 0;
+    while sent < requests {
+        rig.transmit();
+        if !rig.m.reply_pending() {
+            rig.t = rig.m.poll_timeout().expect("a request is due").max(rig.t);
+            rig.m.handle_timeout(rig.t);
+            continue;
+        }
+        sent += 1;
+        let (at, bytes) = rig.reply.take().expect("the servo answers");
+        let in_port = at + passed_on;
+        rig.t = rig
+            .t
+            .max(rig.m.reply_look_at().expect("a reply is awaited"));
+        if rig.t < in_port {
+            early += 1;
+            if rig.t < at {
+                // Part of it is in: the driver waits for the rest.
+                rig.m.handle_timeout(rig.t);
+            } else if tell {
+                rig.m.note_reply_incomplete();
+            }
+            rig.t = in_port;
+        }
+        rig.m.handle_input(&bytes, rig.t);
+        assert!(!rig.m.reply_pending());
+        rig.drain_events();
+    }
+    early
+}
+
+#[test]
+fn a_look_held_until_the_kernel_passes_the_reply_on_teaches_a_later_look() {
+    let passed_on = us(150);
+    let early = |tell: bool| {
+        let mut rig = Rig::online_with_force(&[1, 2, 3, 4]);
+        looks_before_the_port_has_the_reply(&mut rig, 200, passed_on, tell);
+        looks_before_the_port_has_the_reply(&mut rig, 400, passed_on, tell)
+    };
+    // Untold, the looks learn to come when the reply is whole on the wire, and nearly every
+    // one is then held by the read (a second wake-up of the bus thread, in the kernel).
+    let untold = early(false);
+    assert!(untold >= 300, "{untold} of 400 looks came early");
+    // Told, three looks in four come once the port has the reply.
+    let told = early(true);
+    assert!(told <= 140, "{told} of 400 looks came early");
+}
+
 /// Goals at `period` with the given arrival offsets (µs, may be negative) per tick, each tick
 /// in `messages` messages `spacing` apart, each message carrying a new goal for `servos`.
 /// Returns, per goal message after the first 20 ticks, how long its frame waited, and what the
