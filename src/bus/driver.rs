@@ -11,22 +11,21 @@
 //! next deadline come sooner (a request written behind the frame, whose reply is to be read)
 //! sets the bus thread's timer (a timerfd) instead of waking it; the thread wakes once, then.
 //!
-//! The bus thread reads the port when the bus master says a reply should be there, not on
-//! every byte: it sleeps until the bus master's next deadline or until the awaited reply should
-//! be (nearly) whole ([`BusMaster::reply_look_at`]), reads whatever has arrived without
-//! blocking (the tty may hold that read until bytes its kernel worker has queued are passed on;
-//! the count of bytes it held before the read then tells the bus master that the look came
-//! early, see [`BusMaster::note_reply_incomplete`]), and if part of the reply is still missing,
-//! waits on the port with the tty's read
-//! threshold (termios `VMIN`) set to the bytes missing ([`BusMaster::bytes_awaited`]), so the
-//! kernel wakes it once they are all in. A reply costs about one wake-up, not one per byte (at
-//! 115 200 bit/s a telemetry reply is 26 bytes; the bridge's CPU time is mostly wake-ups). The
-//! port is in no event loop, so bytes arriving otherwise wake nothing (a tty wakes whoever
-//! polls it at every chunk it receives, whatever the threshold). The thread also
-//! publishes the status (when it changed, at least every 100 ms) and the events, and reopens
-//! a port that fails or disappears with back-off (`port_reopen_backoff`, 100 ms doubling to
-//! 2 s by default); goals keep being accepted meanwhile. A port that fails while idle is
-//! noticed within 100 ms (the thread reads at least that often).
+//! The bus thread reads the port when the bus master says a reply should be there, not on every
+//! byte: it sleeps until the bus master's next deadline or until the awaited reply should be
+//! (nearly) whole ([`BusMaster::reply_look_at`]), reads whatever has arrived without blocking (the
+//! tty may hold that read until bytes its kernel worker has queued are passed on; the count of
+//! bytes it held before the read then tells the bus master that the look came early, see
+//! [`BusMaster::note_reply_incomplete`]), and if part of the reply is still missing, waits on the
+//! port with the tty's read threshold (termios `VMIN`) set to the bytes missing
+//! ([`BusMaster::bytes_awaited`]), so the kernel wakes it once they are all in. A reply costs about
+//! one wake-up, not one per byte (at 115 200 bit/s a telemetry reply is 26 bytes; the bridge's CPU
+//! time is mostly wake-ups). The port is in no event loop, so bytes arriving otherwise wake nothing
+//! (a tty wakes whoever polls it at every chunk it receives, whatever the threshold). The thread
+//! also publishes the status (when it changed, at least every 100 ms) and the events, and reopens a
+//! port that fails or disappears with back-off (`port_reopen_backoff`, 100 ms doubling to 2 s by
+//! default); goals keep being accepted meanwhile. A port that fails while idle is noticed within
+//! 100 ms (the thread reads at least that often).
 //!
 //! This file must never decide what to send or when: it only carries bytes and time between the
 //! port and the bus master. It never panics: a port error is a lost port, a poisoned lock is
