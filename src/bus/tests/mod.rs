@@ -1661,6 +1661,25 @@ fn a_position_read_replaces_only_the_position_of_the_latest_telemetry() {
     );
 }
 
+impl Rig {
+    /// Write what is due; when a request went out, take its reply (when it is whole on the
+    /// wire, and its bytes) and move to the bus master's look at it. Otherwise move to the next
+    /// deadline and return `None`.
+    fn request_and_look(&mut self) -> Option<(Instant, Vec<u8>)> {
+        self.transmit();
+        if !self.m.reply_pending() {
+            self.t = self.m.poll_timeout().expect("a request is due").max(self.t);
+            self.m.handle_timeout(self.t);
+            return None;
+        }
+        let reply = self.reply.take().expect("the servo answers");
+        self.t = self
+            .t
+            .max(self.m.reply_look_at().expect("a reply is awaited"));
+        Some(reply)
+    }
+}
+
 /// Run `requests` requests like the bus thread does: look when [`BusMaster::reply_look_at`]
 /// says, and when part of the reply is missing, wait until it is all in (the tty's read
 /// threshold) and read it then. The n-th reply is late by `lateness(n)` besides the return
@@ -1676,17 +1695,10 @@ fn run_like_the_bus_thread(
     let mut sent = 0;
     while sent < requests {
         rig.latency = lateness(sent);
-        rig.transmit();
-        if !rig.m.reply_pending() {
-            rig.t = rig.m.poll_timeout().expect("a request is due").max(rig.t);
-            rig.m.handle_timeout(rig.t);
+        let Some((at, bytes)) = rig.request_and_look() else {
             continue;
-        }
+        };
         sent += 1;
-        let (at, bytes) = rig.reply.take().expect("the servo answers");
-        rig.t = rig
-            .t
-            .max(rig.m.reply_look_at().expect("a reply is awaited"));
         let missing = at
             .saturating_duration_since(rig.t)
             .as_nanos()
@@ -1788,18 +1800,11 @@ fn looks_before_the_port_has_the_reply(
     let mut early = 0;
     let mut sent = 0;
     while sent < requests {
-        rig.transmit();
-        if !rig.m.reply_pending() {
-            rig.t = rig.m.poll_timeout().expect("a request is due").max(rig.t);
-            rig.m.handle_timeout(rig.t);
+        let Some((at, bytes)) = rig.request_and_look() else {
             continue;
-        }
+        };
         sent += 1;
-        let (at, bytes) = rig.reply.take().expect("the servo answers");
         let in_port = at + passed_on;
-        rig.t = rig
-            .t
-            .max(rig.m.reply_look_at().expect("a reply is awaited"));
         if rig.t < in_port {
             early += 1;
             if rig.t < at {
