@@ -242,7 +242,7 @@ struct Core {
     write_error: Option<String>,
     /// The instant the bus thread next looks at the bus master unless the bell wakes it
     /// first: the end of its own wait, or [`Wakers::timer`] where another thread brought it
-    /// forward. `None` while the thread is awake: it looks at the bus master before it sleeps.
+    /// forward. `None` from a wake-up until the thread has looked at the bus master again.
     armed: Option<Instant>,
     /// [`Wakers::timer`] is set (by a thread that wrote and brought `armed` forward).
     timer_set: bool,
@@ -549,9 +549,9 @@ impl BusHandle {
     /// Several batches of goals that arrived together, in order, under one lock: each is an
     /// autopilot output message (`true`, as [`BusHandle::output_message`]) or goals no message
     /// brought (`false`, as [`BusHandle::set_goals`]). What each makes due is written before
-    /// the next is taken; the bus thread is woken at most once, after the last, and only when
-    /// it must re-arm. (Woken after the first message of a tick whose second is already in
-    /// hand, it would only wait for the lock while the second is handled.)
+    /// the next is taken (a request due soon goes out behind the tick's long packet); then,
+    /// when the bus master's next deadline came sooner, the bus thread's timer is set to it,
+    /// and the thread is woken only when the port failed.
     pub fn pass_goals<G>(&self, batches: impl IntoIterator<Item = (bool, G)>)
     where
         G: IntoIterator<Item = (ServoId, Goal)>,
