@@ -342,7 +342,8 @@ fn with_a_telemetry_rate_a_tick_s_frame_carries_the_first_read_behind_it_and_rea
             carried * 100 >= frames * 95,
             "±{jitter} µs: {carried} of {frames} frames had a request behind them"
         );
-        // Reads started early keep their place: each servo is read at the rate asked.
+        // A read started early behind a tick is the only one of its period: each servo is
+        // read at the rate asked.
         let seconds = (until - from).as_secs_f64();
         for n in 1..=4 {
             let hz = window
