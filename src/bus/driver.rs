@@ -298,10 +298,11 @@ impl Core {
         let Some(port) = self.port.as_mut() else {
             return Ok(());
         };
-        // A look at an awaited reply that finds fewer of its bytes than it misses came early,
-        // even when the read below waits for the kernel's worker to pass them on.
-        if let (Some(missing), Some(held)) = (self.master.bytes_awaited(), bytes_in(port))
-            && held < missing
+        // A first look at an awaited reply that finds fewer of its bytes than it misses came
+        // early, even when the read below waits for the kernel's worker to pass them on. (Later
+        // reads of the same reply, after the wait for its last bytes, need not ask.)
+        if let Some(missing) = self.master.bytes_awaited_at_first_look()
+            && bytes_in(port).is_some_and(|held| held < missing)
         {
             self.master.note_reply_incomplete();
         }

@@ -1067,6 +1067,15 @@ impl BusMaster {
         &self.counters
     }
 
+    /// [`BusMaster::bytes_awaited`], while no look has yet found the awaited reply incomplete:
+    /// what a driver compares with the bytes the port holds at its first look (see
+    /// [`BusMaster::note_reply_incomplete`]). `None` after such a look, or when no reply is
+    /// pending.
+    pub fn bytes_awaited_at_first_look(&self) -> Option<usize> {
+        self.pending.filter(|p| !p.looked)?;
+        self.bytes_awaited()
+    }
+
     /// The driver found fewer bytes in the port than the awaited reply still misses, and
     /// waits for the rest: the bytes that complete it arrive when it completed, which teaches
     /// [`BusMaster::reply_look_at`] to look later. (A tty whose bytes are still on their way

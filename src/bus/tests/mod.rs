@@ -1811,7 +1811,11 @@ fn looks_before_the_port_has_the_reply(
                 // Part of it is in: the driver waits for the rest.
                 rig.m.handle_timeout(rig.t);
             } else if tell {
+                // As the driver does: the port's count is asked for at the first look only.
+                let missing = rig.m.bytes_awaited_at_first_look();
+                assert_eq!(missing, Some(bytes.len()), "the first look at this reply");
                 rig.m.note_reply_incomplete();
+                assert_eq!(rig.m.bytes_awaited_at_first_look(), None, "looked at");
             }
             rig.t = in_port;
         }
