@@ -244,7 +244,10 @@ struct Core {
     /// first: the end of its own wait, or [`Wakers::timer`] where another thread brought it
     /// forward. `None` from a wake-up until the thread has looked at the bus master again.
     armed: Option<Instant>,
-    /// [`Wakers::timer`] is set (by a thread that wrote and brought `armed` forward).
+    /// The end of the bus thread's own wait (`None` with `armed`): the timer can bring a
+    /// look forward of it, never push one past it.
+    waits_until: Option<Instant>,
+    /// [`Wakers::timer`] is set (by a thread that wrote and moved `armed`).
     timer_set: bool,
     late_wakeups: LateWakeups,
 }
@@ -341,37 +344,84 @@ impl Core {
     }
 
     /// After another thread wrote: whether the bus thread must be woken now (the port failed).
-    /// Otherwise, when the bus master's deadline (or the look at a reply it now awaits) comes
-    /// before the instant the thread sleeps until, the timer is set to it, and the thread
-    /// wakes then, not now. A later deadline needs nothing: the thread wakes at the old one,
-    /// finds nothing due and sleeps again. (A goal's frame is written by the caller; waking
-    /// the thread as well would take a CPU from the simulator, or the kernel's tty worker,
-    /// that should pass the frame on.)
+    /// Otherwise the bus thread is left asleep, and the timer set so that it wakes at the bus
+    /// master's next deadline (or the look at a reply it now awaits), not before:
+    /// - a deadline before the instant armed brings the wake-up forward;
+    /// - a deadline after it pushes back a wake-up that an earlier write brought forward (a
+    ///   tick's first message opens a window for the rest of its goals; the message that
+    ///   closes it writes the frame, and the thread then has nothing to do before the look at
+    ///   the reply), up to the end of the thread's own wait.
+    ///
+    /// (A goal's frame is written by the caller; waking the thread as well would take a CPU
+    /// from the simulator, or the kernel's tty worker, that should pass the frame on.)
     fn after_write(&mut self, timer: &TimerFd) -> bool {
         if self.write_error.is_some() {
             return true;
         }
+        let (Some(armed), Some(own)) = (self.armed, self.waits_until) else {
+            // Awake: the thread looks at the bus master before it sleeps again.
+            return false;
+        };
         let next = [self.master.poll_timeout(), self.master.reply_look_at()]
             .into_iter()
             .flatten()
             .min();
-        if let (Some(next), Some(armed)) = (next, self.armed)
-            && next < armed
-        {
-            let left = next.saturating_duration_since(Instant::now());
-            // A zero expiry would disarm the timer.
-            let left = TimeSpec::from_duration(left.max(Duration::from_nanos(1)));
-            if timer
-                .set(Expiration::OneShot(left), TimerSetTimeFlags::empty())
-                .is_err()
-            {
-                // Never seen; the bell does the timer's work, a wake-up sooner.
-                return true;
+        let (set, armed) = match rearm(armed, own, next, self.timer_set) {
+            Rearm::Keep => return false,
+            Rearm::Set(at) => {
+                // A zero expiry would disarm the timer.
+                let left = at.saturating_duration_since(Instant::now());
+                let left = TimeSpec::from_duration(left.max(Duration::from_nanos(1)));
+                let set = timer.set(Expiration::OneShot(left), TimerSetTimeFlags::empty());
+                (set, at)
             }
-            self.armed = Some(next);
-            self.timer_set = true;
+            Rearm::Unset => (timer.unset(), own),
+        };
+        if set.is_err() {
+            // Never seen; the bell does the timer's work, a wake-up sooner.
+            return true;
         }
+        self.armed = Some(armed);
+        self.timer_set = armed < own;
         false
+    }
+
+    /// The bus thread is about to wait until `until`: armed for it, or for the earlier instant
+    /// another thread's timer keeps.
+    fn arm(&mut self, until: Instant) {
+        self.waits_until = Some(until);
+        self.armed = Some(self.armed.map_or(until, |armed| armed.min(until)));
+    }
+
+    /// The bus thread woke: the instant it was armed for.
+    fn woke(&mut self) -> Option<Instant> {
+        self.waits_until = None;
+        self.armed.take()
+    }
+}
+
+/// What a write does to the timer of the sleeping bus thread ([`Core::after_write`]).
+#[derive(Debug, PartialEq)]
+enum Rearm {
+    /// The thread wakes when it should already.
+    Keep,
+    /// Set the timer to fire then.
+    Set(Instant),
+    /// Unset the timer: the thread's own wait ends first.
+    Unset,
+}
+
+/// The thread sleeps until `armed` (its own wait ends at `own`; the timer is set when
+/// `timer_set`), and the bus master's next deadline is now `next`: wake it then, never after
+/// `own`, and never just because a deadline an earlier write brought forward has gone.
+fn rearm(armed: Instant, own: Instant, next: Option<Instant>, timer_set: bool) -> Rearm {
+    let next = next.map_or(own, |next| next.min(own));
+    if next == armed || (next > armed && !timer_set) {
+        Rearm::Keep
+    } else if next < own {
+        Rearm::Set(next)
+    } else {
+        Rearm::Unset
     }
 }
 
@@ -431,22 +481,19 @@ impl Shared {
         }
     }
 
-    /// Sleep until `until` (or the earlier instant armed meanwhile), until the bell rings or
-    /// until the timer fires; returns the core locked again (it is not held meanwhile). A
-    /// wake-up more than [`LATE_WAKEUP`] after the instant armed is counted.
+    /// Sleep until `until` (or the instant a thread that wrote armed the timer for), until the
+    /// bell rings or until the timer fires; returns the core locked again (it is not held
+    /// meanwhile). A wake-up more than [`LATE_WAKEUP`] after the instant armed is counted.
     fn sleep<'a>(
         &'a self,
         wakers: &Wakers,
         mut core: MutexGuard<'a, Core>,
         until: Instant,
     ) -> MutexGuard<'a, Core> {
-        if std::mem::take(&mut core.timer_set) {
-            // Disarmed before the wait: a timer left set would end a later one for nothing.
-            let _ = wakers.timer.unset();
-        }
-        // A thread that wrote since `until` was chosen may have brought it forward.
-        let until = core.armed.map_or(until, |armed| armed.min(until));
-        core.armed = Some(until);
+        // A timer set since `until` was chosen fires before it (a write pushing it past
+        // `until` unsets it); the thread's own wait ends at `until`, so that a later write can
+        // still push the timer back.
+        core.arm(until);
         drop(core);
         let mut fds = [
             PollFd::new(wakers.bell.as_fd(), PollFlags::POLLIN),
@@ -468,7 +515,7 @@ impl Shared {
         let now = Instant::now();
         let mut core = self.core();
         // Awake: the thread looks at the bus master before it sleeps again.
-        let armed = core.armed.take().unwrap_or(until);
+        let armed = core.woke().unwrap_or(until);
         let late = now.saturating_duration_since(armed);
         if slept && !rung && late > LATE_WAKEUP {
             core.late_wakeup(late);
@@ -635,6 +682,7 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
             port: None,
             write_error: None,
             armed: None,
+            waits_until: None,
             timer_set: false,
             late_wakeups: LateWakeups::default(),
         }),
@@ -897,7 +945,13 @@ impl Driver {
                     .into_iter()
                     .flatten()
                     .fold(refresh, Instant::min);
-                core.armed = Some(wake_at);
+                if std::mem::take(&mut core.timer_set) {
+                    // Fired, or to fire at a deadline `wake_at` already holds: a timer left
+                    // set would end a later wait for nothing.
+                    let _ = wakers.timer.unset();
+                }
+                core.armed = None;
+                core.arm(wake_at);
                 (
                     wake_at,
                     reply_wait,
@@ -1066,6 +1120,27 @@ impl Drop for ReplyWaiter {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_write_moves_the_sleeping_thread_s_timer_to_the_bus_master_s_next_deadline() {
+        let t = Instant::now();
+        let ms = |n: u64| t + Duration::from_millis(n);
+        // Asleep until its own 18 ms, no timer: a deadline before then sets the timer; one
+        // after it, or none, changes nothing.
+        assert_eq!(rearm(ms(18), ms(18), Some(ms(2)), false), Rearm::Set(ms(2)));
+        assert_eq!(rearm(ms(18), ms(18), Some(ms(30)), false), Rearm::Keep);
+        assert_eq!(rearm(ms(18), ms(18), None, false), Rearm::Keep);
+        // A tick's first message brought the wake-up forward to the end of its gathering
+        // window (0.1 ms); the message that closed the window wrote the frame, and the next
+        // deadline is the look at the reply behind it (4 ms): the timer goes back to it.
+        assert_eq!(rearm(ms(0), ms(18), Some(ms(4)), true), Rearm::Set(ms(4)));
+        // Nothing due before the thread's own wait ends: the timer is unset.
+        assert_eq!(rearm(ms(4), ms(18), Some(ms(25)), true), Rearm::Unset);
+        assert_eq!(rearm(ms(4), ms(18), None, true), Rearm::Unset);
+        // Sooner still, or the same.
+        assert_eq!(rearm(ms(4), ms(18), Some(ms(3)), true), Rearm::Set(ms(3)));
+        assert_eq!(rearm(ms(4), ms(18), Some(ms(4)), true), Rearm::Keep);
+    }
 
     #[test]
     fn a_late_wake_up_is_told_once_then_only_counted() {
