@@ -276,21 +276,30 @@ impl LateWakeups {
 }
 
 impl Core {
-    /// Write every packet the bus master has due now. A write that fails (or would block: the
-    /// bus master never queues more than about two frames, so a full output buffer means the
-    /// port is stuck) closes the port and leaves the reason for the bus thread.
+    /// Write every packet the bus master has due now, in one write (a tick's frame and the
+    /// read behind it cost one system call, and leave back to back). A write that fails (or
+    /// would block: the bus master never queues more than about two frames, so a full output
+    /// buffer means the port is stuck) closes the port and leaves the reason for the bus
+    /// thread.
     fn flush(&mut self) {
         let Some(port) = self.port.as_mut() else {
             return;
         };
+        let mut due: Option<Vec<u8>> = None;
         while let Some(tx) = self.master.poll_transmit(Instant::now()) {
-            // The bytes cannot start on the wire before the write does.
+            // The bytes cannot start on the wire before the write does (a few microseconds
+            // after this, for every packet of the write).
             self.master.handle_written(Instant::now());
-            if let Err(e) = port.write_all(&tx.bytes) {
-                self.write_error = Some(format!("write failed: {e}"));
-                self.port = None;
-                return;
+            match due.as_mut() {
+                None => due = Some(tx.bytes),
+                Some(bytes) => bytes.extend_from_slice(&tx.bytes),
             }
+        }
+        if let Some(bytes) = due
+            && let Err(e) = port.write_all(&bytes)
+        {
+            self.write_error = Some(format!("write failed: {e}"));
+            self.port = None;
         }
     }
 
