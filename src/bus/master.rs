@@ -124,6 +124,9 @@ pub struct BusMaster {
     /// Until when a periodic read may start early, and how early: the instant a reply ended
     /// or a long packet was handed out, and a little (see [`BusMaster::next_request`]).
     chain_until: Option<(Instant, Duration)>,
+    /// When the current burst of reads began: the tick's long packet, or a read started when
+    /// it was due. A servo read since then is not read early again in the same burst.
+    burst_began: Instant,
 }
 
 impl BusMaster {
@@ -158,6 +161,7 @@ impl BusMaster {
             changed: true,
             judged_at: now,
             chain_until: None,
+            burst_began: now,
         }
     }
 
@@ -367,7 +371,7 @@ impl BusMaster {
         }
         self.pending = None;
         self.changed = true;
-        self.chain_until = Some((now + REACTION, self.cfg.telemetry_min_interval / 4));
+        self.chain_until = Some((now + REACTION, self.chain_early()));
         self.learn_lateness(&p, now);
         self.counters.wire_busy_ns += self.cfg.baud.wire_time_ns(reply.wire_len());
         let mut events = Vec::new();
@@ -550,9 +554,8 @@ impl BusMaster {
                 // fell behind (a read-back took its turn) comes back there. At most half the
                 // autopilot's period early: at ticks much faster than the telemetry rate,
                 // reads started early would come faster than asked.
-                let early = self.cfg.telemetry_min_interval / 2;
-                let early = self.rhythm.period().map_or(early / 2, |p| early.min(p / 2));
-                self.chain_until = Some((now + REACTION, early));
+                self.chain_until = Some((now + REACTION, self.chain_early()));
+                self.burst_began = now;
             }
             return packet;
         }
@@ -583,16 +586,17 @@ impl BusMaster {
         {
             return Some((i, Transaction::Force(mode)));
         }
-        // Right after a reply or a long packet, a periodic read due soon starts now (within a
-        // quarter of the telemetry interval after a reply, half after a long packet): with a
-        // telemetry rate the servos are read one after the other, the first written behind
-        // the tick's long packet by the thread that wrote it, each of the others started by
-        // the reply before it, and the bus thread wakes once per reply, not also to start a
-        // burst.
+        // Right after a reply or a long packet, a periodic read due soon starts now
+        // ([`BusMaster::chain_early`]): with a telemetry rate the servos are read one after
+        // the other, the first written behind the tick's long packet by the thread that wrote
+        // it, each of the others started by the reply before it, and the bus thread wakes
+        // once per reply, not also to start a burst. A servo is read once in a burst: a burst
+        // longer than the early margin would otherwise go round again, faster than asked.
         let early = self
             .chain_until
             .filter(|(until, _)| at <= *until)
             .map_or(Duration::ZERO, |(_, early)| early);
+        let burst_began = self.burst_began;
         let n = self.servos.len();
         for k in 1..=n {
             let i = (self.cursor + k) % n;
@@ -600,7 +604,9 @@ impl BusMaster {
                 continue;
             };
             let periodic = matches!(tx, Transaction::Telemetry | Transaction::Motion);
-            let due_early = periodic && when.is_some_and(|t| t <= at + early);
+            let due_early = periodic
+                && when.is_some_and(|t| t <= at + early)
+                && self.servos[i].last_poll_at.is_none_or(|t| t < burst_began);
             if !(due(when) || due_early) {
                 continue;
             }
@@ -703,6 +709,18 @@ impl BusMaster {
         (gated && self.fits(i, Transaction::Position, at)).then_some(i)
     }
 
+    /// How early a periodic read may start right behind a long packet or a reply: half the
+    /// telemetry interval, and at most half the autopilot's period (at ticks much faster than
+    /// the telemetry rate, reads started early would come faster than asked); a quarter of
+    /// the interval while the period is unknown. As wide after a reply as after the packet:
+    /// the reads of a period stay together behind its tick, where a narrower margin after a
+    /// reply let one that once fell behind (a slow reply, a read-back) stay behind, costing
+    /// a wake-up of its own in every period.
+    fn chain_early(&self) -> Duration {
+        let early = self.cfg.telemetry_min_interval / 2;
+        self.rhythm.period().map_or(early / 2, |p| early.min(p / 2))
+    }
+
     /// How far ahead of the wire a long packet may be queued: one frame of the largest size.
     fn command_lead(&self) -> Duration {
         self.cfg.wire_time(8 + 5 * self.servos.len())
@@ -713,8 +731,15 @@ impl BusMaster {
         let s = &mut self.servos[i];
         let id = s.id();
         let packet = s.request(tx);
+        let chained = self.chain_until.is_some_and(|(until, _)| now <= until);
         match tx {
-            Transaction::Telemetry | Transaction::Motion => s.last_poll_at = Some(now),
+            Transaction::Telemetry | Transaction::Motion => {
+                if !chained {
+                    // Started when due, not behind a packet or a reply: a new burst.
+                    self.burst_began = now;
+                }
+                s.last_poll_at = Some(now);
+            }
             Transaction::Verify => s.last_verify_at = Some(now),
             _ => {}
         }

@@ -234,6 +234,8 @@ struct Rig {
     /// Time from the end of a request to the servo's first reply byte, besides the return
     /// delay.
     latency: Duration,
+    /// When each reply was handed to the bus master.
+    replied_at: Vec<Instant>,
 }
 
 impl Rig {
@@ -256,6 +258,7 @@ impl Rig {
             echo: false,
             noise: Vec::new(),
             latency: us(100),
+            replied_at: Vec::new(),
         }
     }
 
@@ -327,6 +330,7 @@ impl Rig {
                 let (a, b) = bytes.split_at(bytes.len() / 2);
                 self.m.handle_input(a, self.t);
                 self.m.handle_input(b, self.t);
+                self.replied_at.push(self.t);
             } else {
                 self.m.handle_timeout(self.t);
             }

@@ -360,3 +360,95 @@ fn with_a_telemetry_rate_a_tick_s_frame_carries_the_first_read_behind_it_and_rea
         }
     }
 }
+
+#[test]
+fn after_slow_replies_the_reads_of_a_period_come_back_together_behind_its_tick() {
+    // Replies 6 ms late for one tick push its reads back. The ticks after it must pull them
+    // in again: each read started by the tick's frame or by the reply before it, none on its
+    // own (which costs the bus thread a wake-up of its own in every period), and each servo
+    // still read at the rate asked.
+    for jitter in [0, 1000] {
+        let mut cfg = config(&[1, 2, 3, 4]);
+        cfg.telemetry_min_interval = PERIOD;
+        let (mut rig, warm) = warmed_up_on(cfg);
+        drive(&mut rig, &warm);
+        let slow = ticks(after(&warm), 1, PERIOD, &[0, 1], jitter, |_| true);
+        rig.latency = ms(6);
+        drive(&mut rig, &slow);
+        rig.latency = us(100);
+        let sweep = ticks(after(&slow), 200, PERIOD, &[0, 1], jitter, |_| true);
+        let (from, until) = (after(&slow) + PERIOD * 10, after(&sweep) - PERIOD * 2);
+        drive(&mut rig, &sweep);
+        let window: Vec<&Sent> = rig
+            .log
+            .iter()
+            .filter(|s| s.at >= from && s.at < until)
+            .collect();
+        let frames_at: Vec<Instant> = window
+            .iter()
+            .filter(|s| s.tx.kind == TxKind::Command)
+            .map(|s| s.at)
+            .collect();
+        let is_read = |s: &&&Sent| matches!(s.tx.kind, TxKind::Poll(_) | TxKind::MotionPoll(_));
+        let reads: Vec<Instant> = window.iter().filter(is_read).map(|s| s.at).collect();
+        let alone: Vec<Duration> = reads
+            .iter()
+            .filter(|at| !frames_at.contains(at) && !rig.replied_at.contains(at))
+            .map(|at| *at - from)
+            .collect();
+        assert!(reads.len() >= 700, "±{jitter} µs: {} reads", reads.len());
+        assert!(
+            alone.is_empty(),
+            "±{jitter} µs: {} of {} reads started on their own, at {:?}…",
+            alone.len(),
+            reads.len(),
+            &alone[..alone.len().min(4)]
+        );
+        let seconds = (until - from).as_secs_f64();
+        for n in 1..=4 {
+            let hz = window
+                .iter()
+                .filter(
+                    |s| matches!(s.tx.kind, TxKind::Poll(i) | TxKind::MotionPoll(i) if i == id(n)),
+                )
+                .count() as f64
+                / seconds;
+            assert!(
+                (48.0..=51.0).contains(&hz),
+                "±{jitter} µs: servo {n} read at {hz:.1} Hz, 50 asked"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_burst_of_reads_longer_than_the_early_margin_reads_no_servo_faster_than_asked() {
+    // Five to seven servos at 115 200 bit/s take more than half a 20 ms period to read: reads
+    // started early behind each reply would come round to the first servo again.
+    for n_servos in 5..=7u8 {
+        let ids: Vec<u8> = (1..=n_servos).collect();
+        let mut cfg = config(&ids);
+        cfg.telemetry_min_interval = PERIOD;
+        let (mut rig, warm) = warmed_up_on(cfg);
+        drive(&mut rig, &warm);
+        let sweep = ticks(after(&warm), 200, PERIOD, &[0, 1], 0, |_| true);
+        let (from, until) = (after(&warm) + PERIOD * 10, after(&sweep) - PERIOD * 2);
+        drive(&mut rig, &sweep);
+        let seconds = (until - from).as_secs_f64();
+        for n in 1..=n_servos {
+            let hz = rig
+                .log
+                .iter()
+                .filter(|s| s.at >= from && s.at < until)
+                .filter(
+                    |s| matches!(s.tx.kind, TxKind::Poll(i) | TxKind::MotionPoll(i) if i == id(n)),
+                )
+                .count() as f64
+                / seconds;
+            assert!(
+                (45.0..=51.0).contains(&hz),
+                "{n_servos} servos: servo {n} read at {hz:.1} Hz, 50 asked"
+            );
+        }
+    }
+}
