@@ -141,6 +141,17 @@ fn settled(steps: &[Step], since: Instant, period: Duration) -> Vec<Step> {
         .collect()
 }
 
+/// Position-and-current reads of servo `n` per second, from `from` until `until`.
+fn reads_per_second(rig: &Rig, n: u8, from: Instant, until: Instant) -> f64 {
+    let reads = rig
+        .log
+        .iter()
+        .filter(|s| s.at >= from && s.at < until)
+        .filter(|s| matches!(s.tx.kind, TxKind::Poll(i) | TxKind::MotionPoll(i) if i == id(n)))
+        .count();
+    reads as f64 / (until - from).as_secs_f64()
+}
+
 /// A step waits at most for port 1's message of its tick (and the slack after it).
 const STEP_WAIT: Duration = Duration::from_micros(200);
 
@@ -344,15 +355,8 @@ fn with_a_telemetry_rate_a_tick_s_frame_carries_the_first_read_behind_it_and_rea
         );
         // A read started early behind a tick is the only one of its period: each servo is
         // read at the rate asked.
-        let seconds = (until - from).as_secs_f64();
         for n in 1..=4 {
-            let hz = window
-                .iter()
-                .filter(
-                    |s| matches!(s.tx.kind, TxKind::Poll(i) | TxKind::MotionPoll(i) if i == id(n)),
-                )
-                .count() as f64
-                / seconds;
+            let hz = reads_per_second(&rig, n, from, until);
             assert!(
                 (48.0..=51.0).contains(&hz),
                 "±{jitter} µs: servo {n} read at {hz:.1} Hz, 50 asked"
@@ -404,15 +408,8 @@ fn after_slow_replies_the_reads_of_a_period_come_back_together_behind_its_tick()
             reads.len(),
             &alone[..alone.len().min(4)]
         );
-        let seconds = (until - from).as_secs_f64();
         for n in 1..=4 {
-            let hz = window
-                .iter()
-                .filter(
-                    |s| matches!(s.tx.kind, TxKind::Poll(i) | TxKind::MotionPoll(i) if i == id(n)),
-                )
-                .count() as f64
-                / seconds;
+            let hz = reads_per_second(&rig, n, from, until);
             assert!(
                 (48.0..=51.0).contains(&hz),
                 "±{jitter} µs: servo {n} read at {hz:.1} Hz, 50 asked"
@@ -434,17 +431,8 @@ fn a_burst_of_reads_longer_than_the_early_margin_reads_no_servo_faster_than_aske
         let sweep = ticks(after(&warm), 200, PERIOD, &[0, 1], 0, |_| true);
         let (from, until) = (after(&warm) + PERIOD * 10, after(&sweep) - PERIOD * 2);
         drive(&mut rig, &sweep);
-        let seconds = (until - from).as_secs_f64();
         for n in 1..=n_servos {
-            let hz = rig
-                .log
-                .iter()
-                .filter(|s| s.at >= from && s.at < until)
-                .filter(
-                    |s| matches!(s.tx.kind, TxKind::Poll(i) | TxKind::MotionPoll(i) if i == id(n)),
-                )
-                .count() as f64
-                / seconds;
+            let hz = reads_per_second(&rig, n, from, until);
             assert!(
                 (45.0..=51.0).contains(&hz),
                 "{n_servos} servos: servo {n} read at {hz:.1} Hz, 50 asked"
