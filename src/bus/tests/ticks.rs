@@ -141,15 +141,29 @@ fn settled(steps: &[Step], since: Instant, period: Duration) -> Vec<Step> {
         .collect()
 }
 
-/// Position-and-current reads of servo `n` per second, from `from` until `until`.
-fn reads_per_second(rig: &Rig, n: u8, from: Instant, until: Instant) -> f64 {
-    let reads = rig
-        .log
-        .iter()
-        .filter(|s| s.at >= from && s.at < until)
-        .filter(|s| matches!(s.tx.kind, TxKind::Poll(i) | TxKind::MotionPoll(i) if i == id(n)))
-        .count();
-    reads as f64 / (until - from).as_secs_f64()
+/// Servos 1 to `servos` had their position and current read at a rate in `hz` (50 Hz asked)
+/// from `from` until `until`.
+fn assert_read_at(
+    rig: &Rig,
+    servos: u8,
+    hz: std::ops::RangeInclusive<f64>,
+    from: Instant,
+    until: Instant,
+    what: &str,
+) {
+    for n in 1..=servos {
+        let reads = rig
+            .log
+            .iter()
+            .filter(|s| s.at >= from && s.at < until)
+            .filter(|s| matches!(s.tx.kind, TxKind::Poll(i) | TxKind::MotionPoll(i) if i == id(n)))
+            .count();
+        let rate = reads as f64 / (until - from).as_secs_f64();
+        assert!(
+            hz.contains(&rate),
+            "{what}: servo {n} read at {rate:.1} Hz, 50 asked"
+        );
+    }
 }
 
 /// A step waits at most for port 1's message of its tick (and the slack after it).
@@ -355,13 +369,7 @@ fn with_a_telemetry_rate_a_tick_s_frame_carries_the_first_read_behind_it_and_rea
         );
         // A read started early behind a tick is the only one of its period: each servo is
         // read at the rate asked.
-        for n in 1..=4 {
-            let hz = reads_per_second(&rig, n, from, until);
-            assert!(
-                (48.0..=51.0).contains(&hz),
-                "±{jitter} µs: servo {n} read at {hz:.1} Hz, 50 asked"
-            );
-        }
+        assert_read_at(&rig, 4, 48.0..=51.0, from, until, &format!("±{jitter} µs"));
     }
 }
 
@@ -408,13 +416,7 @@ fn after_slow_replies_the_reads_of_a_period_come_back_together_behind_its_tick()
             reads.len(),
             &alone[..alone.len().min(4)]
         );
-        for n in 1..=4 {
-            let hz = reads_per_second(&rig, n, from, until);
-            assert!(
-                (48.0..=51.0).contains(&hz),
-                "±{jitter} µs: servo {n} read at {hz:.1} Hz, 50 asked"
-            );
-        }
+        assert_read_at(&rig, 4, 48.0..=51.0, from, until, &format!("±{jitter} µs"));
     }
 }
 
@@ -431,12 +433,7 @@ fn a_burst_of_reads_longer_than_the_early_margin_reads_no_servo_faster_than_aske
         let sweep = ticks(after(&warm), 200, PERIOD, &[0, 1], 0, |_| true);
         let (from, until) = (after(&warm) + PERIOD * 10, after(&sweep) - PERIOD * 2);
         drive(&mut rig, &sweep);
-        for n in 1..=n_servos {
-            let hz = reads_per_second(&rig, n, from, until);
-            assert!(
-                (45.0..=51.0).contains(&hz),
-                "{n_servos} servos: servo {n} read at {hz:.1} Hz, 50 asked"
-            );
-        }
+        let what = format!("{n_servos} servos");
+        assert_read_at(&rig, n_servos, 45.0..=51.0, from, until, &what);
     }
 }
