@@ -375,7 +375,7 @@ impl Core {
             .into_iter()
             .flatten()
             .min();
-        let (set, armed) = match rearm(armed, own, next, self.timer_set) {
+        let (set, armed) = match rearm(armed, own, next) {
             Rearm::Keep => return false,
             Rearm::Set(at) => {
                 // A zero expiry would disarm the timer.
@@ -420,12 +420,13 @@ enum Rearm {
     Unset,
 }
 
-/// The thread sleeps until `armed` (its own wait ends at `own`; the timer is set when
-/// `timer_set`), and the bus master's next deadline is now `next`: wake it then, never after
-/// `own`, and never just because a deadline an earlier write brought forward has gone.
-fn rearm(armed: Instant, own: Instant, next: Option<Instant>, timer_set: bool) -> Rearm {
+/// The thread sleeps until `armed` (its own wait ends at `own`; the timer is set exactly when
+/// `armed` is before `own`), and the bus master's next deadline is now `next`: wake it then,
+/// never after `own`, and never just because a deadline an earlier write brought forward has
+/// gone.
+fn rearm(armed: Instant, own: Instant, next: Option<Instant>) -> Rearm {
     let next = next.map_or(own, |next| next.min(own));
-    if next == armed || (next > armed && !timer_set) {
+    if next == armed {
         Rearm::Keep
     } else if next < own {
         Rearm::Set(next)
@@ -1136,19 +1137,19 @@ mod tests {
         let ms = |n: u64| t + Duration::from_millis(n);
         // Asleep until its own 18 ms, no timer: a deadline before then sets the timer; one
         // after it, or none, changes nothing.
-        assert_eq!(rearm(ms(18), ms(18), Some(ms(2)), false), Rearm::Set(ms(2)));
-        assert_eq!(rearm(ms(18), ms(18), Some(ms(30)), false), Rearm::Keep);
-        assert_eq!(rearm(ms(18), ms(18), None, false), Rearm::Keep);
+        assert_eq!(rearm(ms(18), ms(18), Some(ms(2))), Rearm::Set(ms(2)));
+        assert_eq!(rearm(ms(18), ms(18), Some(ms(30))), Rearm::Keep);
+        assert_eq!(rearm(ms(18), ms(18), None), Rearm::Keep);
         // A tick's first message brought the wake-up forward to the end of its gathering
         // window (0.1 ms); the message that closed the window wrote the frame, and the next
         // deadline is the look at the reply behind it (4 ms): the timer goes back to it.
-        assert_eq!(rearm(ms(0), ms(18), Some(ms(4)), true), Rearm::Set(ms(4)));
+        assert_eq!(rearm(ms(0), ms(18), Some(ms(4))), Rearm::Set(ms(4)));
         // Nothing due before the thread's own wait ends: the timer is unset.
-        assert_eq!(rearm(ms(4), ms(18), Some(ms(25)), true), Rearm::Unset);
-        assert_eq!(rearm(ms(4), ms(18), None, true), Rearm::Unset);
+        assert_eq!(rearm(ms(4), ms(18), Some(ms(25))), Rearm::Unset);
+        assert_eq!(rearm(ms(4), ms(18), None), Rearm::Unset);
         // Sooner still, or the same.
-        assert_eq!(rearm(ms(4), ms(18), Some(ms(3)), true), Rearm::Set(ms(3)));
-        assert_eq!(rearm(ms(4), ms(18), Some(ms(4)), true), Rearm::Keep);
+        assert_eq!(rearm(ms(4), ms(18), Some(ms(3))), Rearm::Set(ms(3)));
+        assert_eq!(rearm(ms(4), ms(18), Some(ms(4))), Rearm::Keep);
     }
 
     #[test]

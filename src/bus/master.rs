@@ -596,7 +596,6 @@ impl BusMaster {
             .chain_until
             .filter(|(until, _)| at <= *until)
             .map_or(Duration::ZERO, |(_, early)| early);
-        let burst_began = self.burst_began;
         let n = self.servos.len();
         for k in 1..=n {
             let i = (self.cursor + k) % n;
@@ -606,7 +605,9 @@ impl BusMaster {
             let periodic = matches!(tx, Transaction::Telemetry | Transaction::Motion);
             let due_early = periodic
                 && when.is_some_and(|t| t <= at + early)
-                && self.servos[i].last_poll_at.is_none_or(|t| t < burst_began);
+                && self.servos[i]
+                    .last_poll_at
+                    .is_none_or(|t| t < self.burst_began);
             if !(due(when) || due_early) {
                 continue;
             }
