@@ -761,6 +761,20 @@ enum Exit {
     PortLost(String),
 }
 
+/// When [`Driver::publish`] publishes the status.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Publish {
+    /// When something changed, at most every [`publish_spacing`]; at once with an event; and
+    /// every [`STATUS_REFRESH`] in any case.
+    IfDue,
+    /// Now (the driver's last status).
+    Now,
+    /// Now, because the reply about to be read would replace a reading that the spacing held
+    /// back (e.g. one read just after an event's status). The spacing counts on from the status
+    /// before, so that the reply's own reading goes out as it would have.
+    BeforeReplacing,
+}
+
 struct Driver {
     name: String,
     shared: Arc<Shared>,
@@ -828,7 +842,7 @@ impl Driver {
                     );
                 }
             }
-            self.publish(false);
+            self.publish(Publish::IfDue);
             if self.shared.core().master.is_shut_down() || self.shutdown_requested() {
                 break;
             }
@@ -837,7 +851,7 @@ impl Driver {
                 break;
             }
         }
-        self.publish(true);
+        self.publish(Publish::Now);
         let _ = self.finished.send(true);
     }
 
@@ -858,17 +872,16 @@ impl Driver {
                     return true;
                 }
             }
-            self.publish(false);
+            self.publish(Publish::IfDue);
             if Instant::now() >= until {
                 return false;
             }
         }
     }
 
-    /// Publish the status (when it changed, at most every [`publish_spacing`], or every
-    /// [`STATUS_REFRESH`]; at once with an event), then the events: whoever reacts to an event
-    /// finds a status at least as new as the event.
-    fn publish(&mut self, force: bool) {
+    /// Publish the status (see [`Publish`]), then the events: whoever reacts to an event finds
+    /// a status at least as new as the event.
+    fn publish(&mut self, why: Publish) {
         let now = Instant::now();
         let mut events = Vec::new();
         let status = {
@@ -878,7 +891,7 @@ impl Driver {
             }
             let since = now.saturating_duration_since(self.published_at);
             let spacing = publish_spacing(core.master.config());
-            let due = force
+            let due = why != Publish::IfDue
                 || !events.is_empty()
                 || since >= STATUS_REFRESH
                 || (core.master.has_changed() && since >= spacing);
@@ -889,7 +902,9 @@ impl Driver {
         };
         if let Some(mut status) = status {
             status.thread = thread_usage();
-            self.published_at = now;
+            if why != Publish::BeforeReplacing {
+                self.published_at = now;
+            }
             (self.observe)(&status);
             self.status.send_replace(status);
         }
@@ -922,6 +937,9 @@ impl Driver {
     fn serve(&mut self, wakers: &Wakers, mut waiter: ReplyWaiter) -> Exit {
         let mut buf = [0u8; 512];
         loop {
+            if self.shared.core().master.awaited_reply_hides_a_reading() {
+                self.publish(Publish::BeforeReplacing);
+            }
             let (wake_at, reply_wait, wire_idle_at) = {
                 let mut core = self.shared.core();
                 let now = Instant::now();
@@ -970,7 +988,7 @@ impl Driver {
                     done.then(|| core.master.wire_idle_at() + core.master.config().turnaround),
                 )
             };
-            self.publish(false);
+            self.publish(Publish::IfDue);
             if let Some(idle) = wire_idle_at {
                 // Let the final packets leave the wire (and the kernel's output buffer) before
                 // the port closes.
@@ -1006,11 +1024,11 @@ impl Driver {
 
 /// How often at most a changed status is published: building and passing one on costs about
 /// as much as a transaction, so a status follows every change only on a bus that reads as
-/// often as it can. Half the telemetry interval (at most 5 ms), so that no servo's reading is
-/// replaced before a status has carried it (the flight record keeps every one). The thread
-/// never wakes only to publish: a change held back goes out at its next wake-up (a read, a
-/// deadline, or [`STATUS_REFRESH`]).
-fn publish_spacing(cfg: &BusConfig) -> Duration {
+/// often as it can. Half the telemetry interval (at most 5 ms), so that a reading is seldom held
+/// back at all. The thread never wakes only to publish: a change held back goes out at its next
+/// wake-up (a read, a deadline, or [`STATUS_REFRESH`]), before that wake-up reads a reply that
+/// would replace it ([`Publish::BeforeReplacing`]): the flight record keeps every reading.
+pub(super) fn publish_spacing(cfg: &BusConfig) -> Duration {
     (cfg.telemetry_min_interval / 2).min(Duration::from_millis(5))
 }
 

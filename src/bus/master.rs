@@ -1085,8 +1085,21 @@ impl BusMaster {
     }
 
     /// Whether anything a status snapshot shows (besides ages) changed since the last call.
+    /// Call it when a snapshot is taken: every reading so far counts as shown from then on.
     pub fn take_changed(&mut self) -> bool {
+        for s in &mut self.servos {
+            s.reading_unshown = false;
+        }
         std::mem::take(&mut self.changed)
+    }
+
+    /// Whether the reply awaited, once read, would replace a reading of its servo that no
+    /// snapshot has carried since [`BusMaster::take_changed`]. A driver that holds snapshots
+    /// back to save work takes one before it reads such a reply, so that whoever keeps every
+    /// reading (the flight record) misses none.
+    pub fn awaited_reply_hides_a_reading(&self) -> bool {
+        self.pending
+            .is_some_and(|p| self.servos.get(p.index).is_some_and(|s| s.reading_unshown))
     }
 
     pub fn counters(&self) -> &BusCounters {

@@ -97,6 +97,9 @@ pub(super) struct Servo {
     pub position_at: Option<Instant>,
     /// When a position-and-current read last refreshed the telemetry's position and current.
     pub motion_at: Option<Instant>,
+    /// A reading (full, or of the position) arrived that no status has carried yet (see
+    /// [`super::BusMaster::awaited_reply_hides_a_reading`]).
+    pub reading_unshown: bool,
     /// The temperature flags changed in a reply that carried no temperature: read it at the
     /// servo's next poll.
     pub full_wanted: bool,
@@ -151,6 +154,7 @@ impl Servo {
             telemetry_at: None,
             position_at: None,
             motion_at: None,
+            reading_unshown: false,
             full_wanted: false,
             held: None,
             flags: ReplyFlags::default(),
@@ -538,6 +542,7 @@ impl Servo {
         self.telemetry = Some(t);
         self.telemetry_at = Some(now);
         self.position_at = None;
+        self.reading_unshown = true;
         self.telemetry_count += 1;
         self.last_position = Some(t.present_position);
     }
@@ -548,6 +553,7 @@ impl Servo {
         if let Some(t) = self.telemetry.as_mut() {
             t.present_position = position;
             self.position_at = Some(now);
+            self.reading_unshown = true;
         }
         self.last_position = Some(position);
     }
@@ -564,6 +570,7 @@ impl Servo {
             t.present_load = motion.present_load;
             self.position_at = Some(now);
             self.motion_at = Some(now);
+            self.reading_unshown = true;
         }
         self.last_position = Some(motion.present_position);
     }

@@ -236,6 +236,58 @@ struct Rig {
     latency: Duration,
     /// When each reply was handed to the bus master.
     replied_at: Vec<Instant>,
+    /// When set, takes snapshots at the rig's turns as the driver publishes them.
+    publisher: Option<Publisher>,
+}
+
+/// The driver's publishing, at each turn of the rig (a reply handed in, or a timeout): a
+/// snapshot when something changed, at most every `spacing`; one at the first turn after each
+/// `event_every`, as for an event; and, when `guarded`, one before a reply is handed in that
+/// would replace a reading no snapshot has shown.
+struct Publisher {
+    spacing: Duration,
+    event_every: Duration,
+    guarded: bool,
+    taken_at: Instant,
+    next_event: Instant,
+    snapshots: Vec<BusStatus>,
+    /// Snapshots taken before a reply.
+    guards: usize,
+    /// Every this many replies, the driver looks for one 200 µs before it has arrived (a wake-up
+    /// that finds it incomplete), and which reply it looked at so.
+    early_every: usize,
+    looked_early: Option<Instant>,
+}
+
+impl Publisher {
+    fn take(&mut self, m: &mut BusMaster, now: Instant) {
+        m.take_changed();
+        self.snapshots.push(m.status_at(now));
+    }
+
+    /// When to look early for the reply due at `reply_at`, the `replies`th.
+    fn early_look(&self, reply_at: Instant, replies: usize) -> Option<Instant> {
+        (replies.is_multiple_of(self.early_every) && self.looked_early != Some(reply_at))
+            .then(|| reply_at - us(200))
+    }
+
+    fn before_reply(&mut self, m: &mut BusMaster, now: Instant) {
+        if self.guarded && m.awaited_reply_hides_a_reading() {
+            self.take(m, now);
+            self.guards += 1;
+        }
+    }
+
+    fn after_turn(&mut self, m: &mut BusMaster, now: Instant) {
+        let event = now >= self.next_event;
+        if event || (m.has_changed() && now - self.taken_at >= self.spacing) {
+            while self.next_event <= now {
+                self.next_event += self.event_every;
+            }
+            self.take(m, now);
+            self.taken_at = now;
+        }
+    }
 }
 
 impl Rig {
@@ -259,6 +311,7 @@ impl Rig {
             noise: Vec::new(),
             latency: us(100),
             replied_at: Vec::new(),
+            publisher: None,
         }
     }
 
@@ -312,6 +365,22 @@ impl Rig {
                 (Some((r, _)), None) => Some(*r),
                 (None, t) => t.map(|t| t.max(self.t)),
             };
+            let early = match (&self.publisher, &self.reply) {
+                (Some(p), Some((r, _))) => p
+                    .early_look(*r, self.replied_at.len())
+                    .filter(|&at| at >= self.t && next.is_none_or(|n| at < n)),
+                _ => None,
+            };
+            if let (Some(at), Some(p)) = (early, self.publisher.as_mut())
+                && at <= end
+            {
+                self.t = at;
+                p.looked_early = self.reply.as_ref().map(|(r, _)| *r);
+                self.m.handle_timeout(at);
+                p.after_turn(&mut self.m, at);
+                self.drain_events();
+                continue;
+            }
             match next {
                 Some(n) if n <= end => self.t = n,
                 _ => {
@@ -322,6 +391,9 @@ impl Rig {
             }
             if self.reply.as_ref().is_some_and(|(r, _)| *r <= self.t) {
                 let (_, bytes) = self.reply.take().unwrap();
+                if let Some(p) = self.publisher.as_mut() {
+                    p.before_reply(&mut self.m, self.t);
+                }
                 if !self.noise.is_empty() {
                     let noise = self.noise.clone();
                     self.m.handle_input(&noise, self.t);
@@ -333,6 +405,9 @@ impl Rig {
                 self.replied_at.push(self.t);
             } else {
                 self.m.handle_timeout(self.t);
+            }
+            if let Some(p) = self.publisher.as_mut() {
+                p.after_turn(&mut self.m, self.t);
             }
             self.drain_events();
         }
@@ -1112,6 +1187,87 @@ fn telemetry_polls_go_round_robin_and_are_published() {
     m.handle_timeout(later);
     assert_eq!(m.status().servo(id(3)).unwrap().health, Health::Stale);
     assert!(m.status().servo(id(3)).unwrap().age.unwrap() >= ms(600));
+}
+
+/// A driver's view (see [`Publisher`]) of the readings of servos `ids`, polled at 50 Hz, over
+/// 2 s of goals at 50 Hz on two ports, with an event every 13 ms. Returns the readings the servos gave
+/// (full, position-and-current, position-only) and the readings the snapshots showed.
+fn readings_shown(ids: &[u8], guarded: bool) -> (u64, u64) {
+    let mut cfg = config(ids);
+    cfg.telemetry_min_interval = ms(20);
+    let spacing = driver::publish_spacing(&cfg);
+    let mut rig = Rig::online_with_force_on(cfg);
+    rig.settle();
+    rig.m.take_changed();
+    rig.publisher = Some(Publisher {
+        spacing,
+        event_every: ms(13),
+        guarded,
+        taken_at: rig.t,
+        next_event: rig.t + ms(13),
+        snapshots: vec![rig.m.status_at(rig.t)],
+        guards: 0,
+        early_every: 3,
+        looked_early: None,
+    });
+    let from = rig.log.len();
+    let mut position = 0;
+    for _ in 0..100 {
+        position = (position + 37) % 2000;
+        let goals: Vec<(u8, Goal)> = ids
+            .iter()
+            .map(|&n| (n, Goal::Position(MmCenti(position - 1000))))
+            .collect();
+        // Two messages a tick, as from an autopilot's two output ports: the second closes
+        // the tick's gathering window, and its frame goes out at once.
+        rig.message(&goals);
+        rig.run(us(100));
+        rig.message(&[]);
+        rig.run(ms(20) - us(100));
+    }
+    rig.settle();
+    let mut publisher = rig.publisher.take().unwrap();
+    publisher.take(&mut rig.m, rig.t);
+    assert!(
+        !guarded || publisher.guards > 0,
+        "no reply would have hidden a reading"
+    );
+    let given = rig
+        .sent_since(from)
+        .iter()
+        .filter(|s| {
+            matches!(
+                s.tx.kind,
+                TxKind::Poll(_) | TxKind::MotionPoll(_) | TxKind::PositionPoll(_)
+            )
+        })
+        .count() as u64;
+    let mut shown = 0;
+    for &n in ids {
+        let reading = |s: &BusStatus| {
+            let servo = s.servo(id(n)).unwrap();
+            (servo.telemetry_count, servo.position_at)
+        };
+        shown += publisher
+            .snapshots
+            .windows(2)
+            .filter(|w| reading(&w[0]) != reading(&w[1]))
+            .count() as u64;
+    }
+    (given, shown)
+}
+
+#[test]
+fn a_reply_that_would_replace_an_unshown_reading_is_announced_before_it_is_read() {
+    for ids in [&[1][..], &[1, 2]] {
+        let (given, shown) = readings_shown(ids, true);
+        assert!(given >= 90 * ids.len() as u64, "{ids:?}: {given} readings");
+        assert_eq!(shown, given, "{ids:?}: readings shown of those given");
+        // The same driver without the look before each reply misses readings: the test can
+        // tell.
+        let (given, shown) = readings_shown(ids, false);
+        assert!(shown < given, "{ids:?}: {shown} of {given} shown unguarded");
+    }
 }
 
 #[test]
