@@ -4,7 +4,7 @@
 mod tempdir;
 
 use lj9da_bridge::bus::{Goal, Health};
-use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, Telemetry};
+use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Motion, Ms10, Mv10, ReplyFlags, Telemetry};
 use lj9da_bridge::record::format::{
     HeaderError, MAX_EVENT_TEXT, RecordHeader, RecordServo, encode_header, encode_record,
 };
@@ -75,6 +75,24 @@ fn every_kind() -> Vec<Record> {
         RecordBody::Position {
             servo: 2,
             position: MmCenti(i16::MAX),
+            flags: ReplyFlags(0),
+        },
+        RecordBody::Motion {
+            servo: 0,
+            motion: Motion {
+                present_position: MmCenti(-2500),
+                present_time: Ms10(0),
+                present_load: Ma10(u16::MAX),
+            },
+            flags: ReplyFlags(0x80),
+        },
+        RecordBody::Motion {
+            servo: 2,
+            motion: Motion {
+                present_position: MmCenti(i16::MIN),
+                present_time: Ms10(u16::MAX),
+                present_load: Ma10(0),
+            },
             flags: ReplyFlags(0),
         },
         RecordBody::Replies {
@@ -165,7 +183,7 @@ fn every_record_kind_round_trips_through_the_recorder_and_the_reader() {
     assert!(rec.closed);
     assert!(rec.notes.is_empty(), "{:?}", rec.notes);
     assert_eq!(rec.header.servos, servos());
-    assert_eq!(rec.header.version, (1, 2));
+    assert_eq!(rec.header.version, (1, 3));
     assert_eq!(rec.header.part, 0);
     assert!(rec.header.software.starts_with("lj9da-bridge "));
     let (last, data) = rec.records.split_last().unwrap();
@@ -350,11 +368,17 @@ fn only_an_unreadable_header_is_an_error() {
 }
 
 #[test]
-fn files_of_formats_1_0_and_1_1_still_read() {
-    // The kinds each older version had: 1.0 no position or replies records, 1.1 no replies.
-    let older: Vec<Record> = every_kind()
+fn files_of_formats_1_0_to_1_2_still_read() {
+    // The kinds each older version had: 1.0 no position or replies records, 1.1 no replies,
+    // and none of them motion records.
+    let v1_2: Vec<Record> = every_kind()
         .into_iter()
+        .filter(|r| !matches!(r.body, RecordBody::Motion { .. }))
+        .collect();
+    let older: Vec<Record> = v1_2
+        .iter()
         .filter(|r| !matches!(r.body, RecordBody::Replies { .. }))
+        .cloned()
         .collect();
     for (minor, records) in [
         (
@@ -366,6 +390,7 @@ fn files_of_formats_1_0_and_1_1_still_read() {
                 .collect::<Vec<_>>(),
         ),
         (1, older.clone()),
+        (2, v1_2),
     ] {
         let mut header = RecordHeader::new(1_763_769_599_000_000_000, servos());
         header.version = (1, minor);

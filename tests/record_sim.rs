@@ -200,6 +200,20 @@ async fn a_simulated_run_is_recorded_and_its_summary_matches_the_simulation() {
         end_s - second_goal_s
     );
     assert!(right.peak_current_a().unwrap() > 1.5);
+    // The reads of position and current between two full ones are recorded with their current:
+    // the stall current shows in them too.
+    let stall_motions = rec
+        .records
+        .iter()
+        .filter(|r| {
+            matches!(&r.body, RecordBody::Motion { servo: 1, motion, .. }
+                if motion.present_load.amps() > 1.5)
+        })
+        .count();
+    assert!(
+        stall_motions >= 5,
+        "{stall_motions} motion records at stall current"
+    );
     assert!(right.max_settled_error_mm.unwrap() > 5.0);
     assert!(rec.records.iter().any(|r| matches!(
         &r.body,

@@ -4,7 +4,7 @@
 mod tempdir;
 
 use lj9da_bridge::bus::Goal;
-use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, Telemetry};
+use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Motion, Ms10, Mv10, ReplyFlags, Telemetry};
 use lj9da_bridge::record::format::RecordServo;
 use lj9da_bridge::record::rotate::list_record_files;
 use lj9da_bridge::record::{
@@ -362,7 +362,7 @@ fn writer_throughput() {
 }
 
 #[test]
-fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
+fn reads_between_full_polls_are_recorded_once_as_position_and_motion_records() {
     use lj9da_bridge::bus::{BusCounters, BusStatus, ForceState, Health, ServoStatus};
     use lj9da_bridge::protocol::ServoId;
     use lj9da_bridge::record::StatusFeed;
@@ -371,7 +371,7 @@ fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
     let handle = Recorder::start(dir.path(), &servos(), RecordLimits::default()).unwrap();
     let mut feed = StatusFeed::new(handle.clone(), &servos());
     let t0 = Instant::now();
-    let status = |telemetry: Telemetry, telemetry_at, position_at| BusStatus {
+    let status = |telemetry: Telemetry, telemetry_at, position_at, motion_at| BusStatus {
         name: "wing".into(),
         port_open: true,
         servos: vec![ServoStatus {
@@ -381,6 +381,7 @@ fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
             telemetry: Some(telemetry),
             telemetry_at: Some(telemetry_at),
             position_at,
+            motion_at,
             age: None,
             flags: ReplyFlags(0x20),
             goal: None,
@@ -401,13 +402,31 @@ fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
     let full = sample(100);
     let mut moved = full;
     moved.present_position = MmCenti(-1234);
+    let mut pulling = moved;
+    pulling.present_position = MmCenti(-1300);
+    pulling.present_time = Ms10(12);
+    pulling.present_load = Ma10(250);
     let polled_at = t0 + Duration::from_millis(10);
     let read_at = t0 + Duration::from_millis(20);
-    feed.observe(&status(full, polled_at, None));
+    let motion_at = t0 + Duration::from_millis(30);
+    feed.observe(&status(full, polled_at, None, None));
     // The position read replaces the position of the latest telemetry; the same status seen
     // again (a refresh) records nothing more.
-    feed.observe(&status(moved, polled_at, Some(read_at)));
-    feed.observe(&status(moved, polled_at, Some(read_at)));
+    feed.observe(&status(moved, polled_at, Some(read_at), None));
+    feed.observe(&status(moved, polled_at, Some(read_at), None));
+    // A read of position and current replaces both: its current is recorded too.
+    feed.observe(&status(
+        pulling,
+        polled_at,
+        Some(motion_at),
+        Some(motion_at),
+    ));
+    feed.observe(&status(
+        pulling,
+        polled_at,
+        Some(motion_at),
+        Some(motion_at),
+    ));
     let path = handle.path().unwrap();
     handle.finish();
 
@@ -419,7 +438,9 @@ fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
         .filter(|b| {
             matches!(
                 b,
-                RecordBody::Telemetry { .. } | RecordBody::Position { .. }
+                RecordBody::Telemetry { .. }
+                    | RecordBody::Position { .. }
+                    | RecordBody::Motion { .. }
             )
         })
         .collect();
@@ -436,12 +457,26 @@ fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
                 position: MmCenti(-1234),
                 flags: ReplyFlags(0x20),
             },
+            &RecordBody::Motion {
+                servo: 1,
+                motion: Motion {
+                    present_position: MmCenti(-1300),
+                    present_time: Ms10(12),
+                    present_load: Ma10(250),
+                },
+                flags: ReplyFlags(0x20),
+            },
         ]
     );
     let times: Vec<u64> = rec
         .records
         .iter()
-        .filter(|r| matches!(r.body, RecordBody::Position { .. }))
+        .filter(|r| {
+            matches!(
+                r.body,
+                RecordBody::Position { .. } | RecordBody::Motion { .. }
+            )
+        })
         .map(|r| r.t_us)
         .collect();
     let telemetry_t = rec
@@ -450,12 +485,14 @@ fn a_position_read_between_full_polls_is_recorded_once_as_a_position_record() {
         .find(|r| matches!(r.body, RecordBody::Telemetry { .. }))
         .map(|r| r.t_us)
         .unwrap();
-    // Stamped with the instant the read's reply arrived: 10 ms after the full poll's.
-    assert_eq!(times.len(), 1);
-    assert!(
-        (times[0] - telemetry_t).abs_diff(10_000) <= 1,
-        "{times:?} vs {telemetry_t}"
-    );
+    // Stamped with the instant each read's reply arrived: 10 and 20 ms after the full poll's.
+    assert_eq!(times.len(), 2);
+    for (t, after) in times.iter().zip([10_000, 20_000]) {
+        assert!(
+            (t - telemetry_t).abs_diff(after) <= 1,
+            "{times:?} vs {telemetry_t}"
+        );
+    }
 }
 
 #[test]
@@ -478,6 +515,7 @@ fn reply_counts_are_recorded_when_they_change_at_most_once_a_second() {
             telemetry: None,
             telemetry_at: None,
             position_at: None,
+            motion_at: None,
             age: None,
             flags: ReplyFlags(0),
             goal: None,

@@ -725,6 +725,7 @@ impl Servo {
             telemetry: self.telemetry,
             telemetry_at: self.telemetry_at,
             position_at: self.position_at,
+            motion_at: self.motion_at.filter(|&at| self.position_at == Some(at)),
             age: self
                 .telemetry_at
                 .map(|at| now.saturating_duration_since(at)),

@@ -73,9 +73,13 @@ pub struct ServoStatus {
     pub telemetry: Option<Telemetry>,
     /// When that telemetry arrived.
     pub telemetry_at: Option<Instant>,
-    /// When its position was refreshed by a position-only read (registers 42–43, in bus time
-    /// too short for a full poll), if it was since; `age` stays that of the full telemetry.
+    /// When its position was refreshed by a read between two full ones (of the position and
+    /// current, registers 42–49, or in bus time too short for that of the position alone,
+    /// registers 42–43), if it was since; `age` stays that of the full telemetry.
     pub position_at: Option<Instant>,
+    /// `position_at` when that read refreshed the current too (registers 42–49), `None` when
+    /// it read the position alone.
+    pub motion_at: Option<Instant>,
     /// Its age at the time of the snapshot.
     pub age: Option<Duration>,
     /// The status bits of the servo's latest reply (bit 1, undefined, removed).

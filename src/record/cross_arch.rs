@@ -16,7 +16,7 @@ use super::format::{Record, RecordBody, RecordServo};
 use super::reader::Recording;
 use super::writer::{RecordLimits, Recorder, RecorderOptions};
 use crate::bus::{Goal, Health};
-use crate::protocol::{Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, Telemetry};
+use crate::protocol::{Celsius, Ma10, MmCenti, Motion, Ms10, Mv10, ReplyFlags, Telemetry};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -104,6 +104,18 @@ fn expected(machine: &str) -> Vec<Record> {
             },
         ),
         (
+            16_385,
+            RecordBody::Motion {
+                servo: 1,
+                motion: Motion {
+                    present_position: MmCenti(i16::MAX),
+                    present_time: Ms10(u16::MAX),
+                    present_load: Ma10(65_535),
+                },
+                flags: ReplyFlags(0x20),
+            },
+        ),
+        (
             (1 << 32) - 1,
             RecordBody::Health {
                 servo: 0,
@@ -164,6 +176,11 @@ fn write_here(dir: &Path) -> PathBuf {
                 position,
                 flags,
             } => handle.position(at(record.t_us), servo.into(), position, flags),
+            RecordBody::Motion {
+                servo,
+                motion,
+                flags,
+            } => handle.motion(at(record.t_us), servo.into(), motion, flags),
             RecordBody::Health {
                 servo,
                 health,
@@ -189,7 +206,7 @@ fn write_here(dir: &Path) -> PathBuf {
 
 /// Check one file's content against the records it must hold; `what` names it in failures.
 fn check(what: &str, recording: &Recording, machine: &str) {
-    assert_eq!(recording.header.version, (1, 2), "{what}");
+    assert_eq!(recording.header.version, (1, 3), "{what}");
     assert_eq!(recording.header.part, 0, "{what}");
     assert_eq!(recording.header.servos, servos(), "{what}");
     assert!(

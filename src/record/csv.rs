@@ -1,11 +1,13 @@
 //! A recording as CSV for spreadsheets: a header line, then one row per record in file order.
 //!
 //! Columns ([`CSV_HEADER`]): `time_s` (since the run's start, µs resolution), `servo` (its
-//! name, empty for the bridge), `kind` (`goal`, `telemetry`, `health`, `event`, `dropped`,
-//! `end`), then the fields of that kind, the others left empty:
+//! name, empty for the bridge), `kind` (`goal`, `telemetry`, `position`, `motion`, `replies`,
+//! `health`, `event`, `dropped`, `end`), then the fields of that kind, the others left empty:
 //! - goal: `goal` (`position`, `hold`, `off`, `brake`) and `goal_mm`;
 //! - telemetry: `position_mm`, `current_a`, `temperature_c`, `voltage_v`, `present_time_ms`,
 //!   `flags` (`ok` or the flags' names);
+//! - position: `position_mm`, `flags`; motion: `position_mm`, `current_a`, `present_time_ms`,
+//!   `flags`; replies: `text` (`replies: N good, M garbled or missing`);
 //! - health: `health`, `stalled` (0 or 1);
 //! - event: `severity` (`warning`, …) and `text`; dropped: `text` (`records dropped: N`);
 //!   end: `text` (`end of run` or `continued in the next file`).
@@ -61,6 +63,14 @@ pub fn csv_fields(rec: &Recording, record: &Record) -> [String; CSV_COLUMNS] {
             position, flags, ..
         } => {
             cols[2] = format!("{:.2}", position.mm());
+            cols[7] = flags.meaningful().to_string();
+        }
+        RecordBody::Motion {
+            motion: m, flags, ..
+        } => {
+            cols[2] = format!("{:.2}", m.present_position.mm());
+            cols[3] = format!("{:.2}", m.present_load.amps());
+            cols[6] = m.present_time.millis().to_string();
             cols[7] = flags.meaningful().to_string();
         }
         RecordBody::Replies {

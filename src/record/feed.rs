@@ -1,8 +1,9 @@
 //! Feeding the recorder from the buses: bus statuses in, telemetry and health records out.
 //!
 //! A [`StatusFeed`] is handed the [`BusStatus`]es a bus publishes and records what is new in
-//! them: each servo's telemetry sample (once, stamped with the time its reply arrived), and its
-//! health or stall state when either changes. It finds a servo's index in the record by its
+//! them: each servo's telemetry sample and each read of its position (and current) between two
+//! full ones (once, stamped with the time its reply arrived), and its health or stall state
+//! when either changes. It finds a servo's index in the record by its
 //! bus name and ID. Bus events can be recorded through it too.
 //!
 //! As the bus's status observer ([`spawn_bus_observed`](crate::bus::spawn_bus_observed)) it is
@@ -27,6 +28,7 @@
 use super::format::{RecordServo, severity};
 use super::writer::RecordHandle;
 use crate::bus::{BusEvent, BusStatus, Health};
+use crate::protocol::Motion;
 use std::time::{Duration, Instant};
 
 /// The shortest time between two replies records of a servo.
@@ -94,8 +96,17 @@ impl StatusFeed {
             if let (Some(telemetry), Some(at)) = (servo.telemetry, servo.position_at)
                 && seen.position_at != Some(at)
             {
-                self.handle
-                    .position(at, index, telemetry.present_position, servo.flags);
+                if servo.motion_at == Some(at) {
+                    let motion = Motion {
+                        present_position: telemetry.present_position,
+                        present_time: telemetry.present_time,
+                        present_load: telemetry.present_load,
+                    };
+                    self.handle.motion(at, index, motion, servo.flags);
+                } else {
+                    self.handle
+                        .position(at, index, telemetry.present_position, servo.flags);
+                }
                 seen.position_at = Some(at);
             }
             let counts = (servo.answered, servo.timeouts);

@@ -1,4 +1,4 @@
-//! The flight record file format, version 1.2: pure encoding and decoding, no I/O.
+//! The flight record file format, version 1.3: pure encoding and decoding, no I/O.
 //!
 //! A record file (`*.lj9rec`) is a header followed by records, all integers little-endian.
 //! Every part of the file is checked by a CRC-32 ([`super::crc32`]: IEEE, as zlib), so that
@@ -11,7 +11,7 @@
 //! |---|---|---|
 //! | 0 | 8 | magic: the ASCII bytes `LJ9DAREC` |
 //! | 8 | 2 | format major version, `u16` (1). A reader refuses a major version it does not know |
-//! | 10 | 2 | format minor version, `u16` (2; 1.0 and 1.1 files are still read). Minor versions only add: a reader of 1.0 reads 1.x |
+//! | 10 | 2 | format minor version, `u16` (3; 1.0 to 1.2 files are still read). Minor versions only add: a reader of 1.0 reads 1.x |
 //! | 12 | 4 | `body_len`, `u32`: the bytes of the header body that follows (at most 1 MiB) |
 //! | 16 | `body_len` | the header body, below |
 //! | 16 + `body_len` | 4 | CRC-32 of bytes 0 … 16 + `body_len` − 1 |
@@ -49,13 +49,15 @@
 //! | 4 | event | `servo` `u8` (255: the bridge, not one servo) · `severity` `u8` (MAV_SEVERITY: 0 emergency … 7 debug) · `text`: the rest of the payload, UTF-8, at most 1000 bytes |
 //! | 5 | dropped | `count` `u64`: records the writer could not take since the previous `dropped` record (its queue was full, or the disk failed) |
 //! | 6 | end | `next` `u8`: 0 the run ended here cleanly, 1 the run continues in the next part |
-//! | 7 | position (1.1) | `servo` `u8` · `flags` `u8` (as in telemetry) · `present_position` `i16` 0.01 mm — 4 bytes |
+//! | 7 | position (1.1) | `servo` `u8` · `flags` `u8` (as in telemetry) · `present_position` `i16` 0.01 mm — 4 bytes; from 1.3, a read of position and current (a motion record) appends `present_time` `u16` 10 ms · `present_load` `u16` 10 mA — 8 bytes |
 //! | 8 | replies (1.2) | `servo` `u8` · `answered` `u32` · `missed` `u32`: the servo's requests since its bus started that got a good reply, and that got a garbled reply or none (both saturate at `u32::MAX`) — 9 bytes |
 //!
 //! A goal is what the bridge handed to the bus (one record per change); a telemetry record is
 //! one reply of registers 42–59, stamped with the time it arrived; a position record is one
 //! reply of registers 42–43 alone (the bus master reads the position by itself in bus time too
-//! short for a full poll); a health record is written
+//! short for a full poll), and a motion record one reply of registers 42–49 (position, present
+//! time and current: the reads between two full ones; a 1.1 or 1.2 reader takes it for a
+//! position record); a health record is written
 //! when a servo's health or its stall state changes; an event is a STATUSTEXT or bus event; a
 //! replies record is written at most once a second per servo while its counts change (the
 //! share of bad replies over a flight is the last one's `missed` over its sum: a wiring figure
@@ -73,7 +75,7 @@
 use super::crc::crc32;
 use crate::bus::{Goal, Health};
 use crate::config::Config;
-use crate::protocol::{Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, Telemetry};
+use crate::protocol::{Celsius, Ma10, MmCenti, Motion, Ms10, Mv10, ReplyFlags, Telemetry};
 use std::fmt;
 
 /// The first 8 bytes of every record file.
@@ -81,7 +83,7 @@ pub const MAGIC: [u8; 8] = *b"LJ9DAREC";
 /// The format's major version: a reader refuses any other.
 pub const VERSION_MAJOR: u16 = 1;
 /// The format's minor version (additions only).
-pub const VERSION_MINOR: u16 = 2;
+pub const VERSION_MINOR: u16 = 3;
 /// The extension of record files (rotation only ever deletes files with it).
 pub const FILE_EXTENSION: &str = "lj9rec";
 /// The largest `len` a record may have.
@@ -108,7 +110,7 @@ pub mod kind {
     pub const EVENT: u8 = 4;
     pub const DROPPED: u8 = 5;
     pub const END: u8 = 6;
-    /// Since format 1.1.
+    /// Since format 1.1; with a longer payload, a motion record (1.3).
     pub const POSITION: u8 = 7;
     /// Since format 1.2.
     pub const REPLIES: u8 = 8;
@@ -124,6 +126,7 @@ const EVENT_MIN_LEN: usize = 2;
 const DROPPED_LEN: usize = 8;
 const END_LEN: usize = 1;
 const POSITION_LEN: usize = 4;
+const MOTION_LEN: usize = 8;
 const REPLIES_LEN: usize = 9;
 
 /// One servo of the header's servo table.
@@ -229,6 +232,13 @@ pub enum RecordBody {
         position: MmCenti,
         flags: ReplyFlags,
     },
+    /// One reply of registers 42–49 (present position, time and current) and its status flags
+    /// (since format 1.3).
+    Motion {
+        servo: u8,
+        motion: Motion,
+        flags: ReplyFlags,
+    },
     /// The servo's reply counts since its bus started: good replies, and garbled or missing
     /// ones (since format 1.2).
     Replies {
@@ -261,6 +271,7 @@ impl RecordBody {
             RecordBody::Goal { servo, .. }
             | RecordBody::Telemetry { servo, .. }
             | RecordBody::Position { servo, .. }
+            | RecordBody::Motion { servo, .. }
             | RecordBody::Replies { servo, .. }
             | RecordBody::Health { servo, .. } => Some(*servo),
             RecordBody::Event { servo, .. } => *servo,
@@ -274,6 +285,7 @@ impl RecordBody {
             RecordBody::Goal { .. } => "goal",
             RecordBody::Telemetry { .. } => "telemetry",
             RecordBody::Position { .. } => "position",
+            RecordBody::Motion { .. } => "motion",
             RecordBody::Replies { .. } => "replies",
             RecordBody::Health { .. } => "health",
             RecordBody::Event { .. } => "event",
@@ -412,7 +424,7 @@ pub fn encode_record(record: &Record, out: &mut Vec<u8>) -> usize {
     let kind = match &record.body {
         RecordBody::Goal { .. } => kind::GOAL,
         RecordBody::Telemetry { .. } => kind::TELEMETRY,
-        RecordBody::Position { .. } => kind::POSITION,
+        RecordBody::Position { .. } | RecordBody::Motion { .. } => kind::POSITION,
         RecordBody::Replies { .. } => kind::REPLIES,
         RecordBody::Health { .. } => kind::HEALTH,
         RecordBody::Event { .. } => kind::EVENT,
@@ -454,6 +466,17 @@ pub fn encode_record(record: &Record, out: &mut Vec<u8>) -> usize {
             out.push(*servo);
             out.push(flags.0);
             out.extend_from_slice(&position.0.to_le_bytes());
+        }
+        RecordBody::Motion {
+            servo,
+            motion: m,
+            flags,
+        } => {
+            out.push(*servo);
+            out.push(flags.0);
+            out.extend_from_slice(&m.present_position.0.to_le_bytes());
+            out.extend_from_slice(&m.present_time.0.to_le_bytes());
+            out.extend_from_slice(&m.present_load.0.to_le_bytes());
         }
         RecordBody::Replies {
             servo,
@@ -791,9 +814,21 @@ fn decode_body(kind: u8, payload: &[u8]) -> Body {
             let servo = c.u8()?;
             let flags = ReplyFlags(c.u8()?);
             let position = MmCenti(c.i16()?);
-            Some(Ok(RecordBody::Position {
+            if payload.len() < MOTION_LEN {
+                return Some(Ok(RecordBody::Position {
+                    servo,
+                    position,
+                    flags,
+                }));
+            }
+            let motion = Motion {
+                present_position: position,
+                present_time: Ms10(c.u16()?),
+                present_load: Ma10(c.u16()?),
+            };
+            Some(Ok(RecordBody::Motion {
                 servo,
-                position,
+                motion,
                 flags,
             }))
         })(),
@@ -897,6 +932,53 @@ mod tests {
             Some(&crc32(&expected_inner).to_le_bytes()[..])
         );
         assert_eq!(decode_record(&out), Decoded::Record { record, len: 21 });
+    }
+
+    #[test]
+    fn a_motion_record_is_a_position_record_with_two_words_more() {
+        let motion = Record {
+            t_us: 300,
+            body: RecordBody::Motion {
+                servo: 2,
+                motion: Motion {
+                    present_position: MmCenti(-100),
+                    present_time: Ms10(3),
+                    present_load: Ma10(45),
+                },
+                flags: ReplyFlags(0x20),
+            },
+        };
+        let mut out = Vec::new();
+        let n = encode_record(&motion, &mut out);
+        let expected_inner = [
+            11, 0, // len: kind 1 + t 2 + payload 8
+            7, // kind: position
+            0xAC, 0x02, // 300 as LEB128
+            2, 0x20, // servo, flags
+            0x9C, 0xFF, // -100
+            3, 0, 45, 0, // present time, present load
+        ];
+        assert_eq!(out.get(..13), Some(&expected_inner[..]));
+        assert_eq!(
+            decode_record(&out),
+            Decoded::Record {
+                record: motion,
+                len: n
+            }
+        );
+        // Its first 4 payload bytes are the position record a reader of 1.1 or 1.2 takes it
+        // for (such a reader ignores the rest).
+        let position = Record {
+            t_us: 300,
+            body: RecordBody::Position {
+                servo: 2,
+                position: MmCenti(-100),
+                flags: ReplyFlags(0x20),
+            },
+        };
+        let mut short = Vec::new();
+        encode_record(&position, &mut short);
+        assert_eq!(short.get(2..9), out.get(2..9));
     }
 
     #[test]

@@ -208,6 +208,10 @@ fn panels(rec: &Recording, servo: usize, end_s: f64) -> Vec<Panel> {
                 voltage.push((t, tm.present_voltage.volts()));
             }
             RecordBody::Position { position: p, .. } => position.push((t, p.mm())),
+            RecordBody::Motion { motion: m, .. } => {
+                position.push((t, m.present_position.mm()));
+                current.push((t, m.present_load.amps()));
+            }
             RecordBody::Goal { goal: g, .. } => match g {
                 Goal::Position(p) => {
                     if let Some(previous) = goal {

@@ -2,12 +2,13 @@
 //!
 //! Definitions (every time in seconds since the run's start):
 //! - **duration**: from the servo's first telemetry sample to its last;
-//! - **samples**: telemetry records; temperature, current and voltage minimum / mean / maximum
-//!   over them (plain means over samples, not weighted by time);
+//! - **samples**: telemetry records; temperature and voltage minimum / mean / maximum over
+//!   them, current over them and the motion records (reads of position and current between two
+//!   full ones; plain means over reads, not weighted by time);
 //! - **time stalled** / **time offline**: the total time between a health record that says
 //!   stalled (offline) and the next that does not, or the end of the recording;
 //! - **max error**: the largest |goal − present position| over the samples and the position
-//!   records (reads of the position alone), each paired with the goal in force at its time (the latest position goal; `hold` keeps it;
+//!   and motion records (reads of the position alone, or with the current), each paired with the goal in force at its time (the latest position goal; `hold` keeps it;
 //!   `off` and `brake` end it, and samples without a goal in force are not paired). It
 //!   includes the travel right after each new goal; **settled error** is the same over the
 //!   samples taken at least [`SETTLE_S`] after the goal last changed;
@@ -290,6 +291,10 @@ fn servo_summary(rec: &Recording, index: usize, servo: &RecordServo) -> ServoSum
             }
             RecordBody::Position { position, .. } => {
                 s.note_error(goal, t - goal_since, *position, t);
+            }
+            RecordBody::Motion { motion: m, .. } => {
+                Accumulator::add(&mut current, m.present_load.amps());
+                s.note_error(goal, t - goal_since, m.present_position, t);
             }
             RecordBody::Event { .. } => s.events += 1,
             _ => {}

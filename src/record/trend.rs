@@ -20,10 +20,10 @@
 //!   below [`HOLDING_MM_S`]; **time in motion**: time between samples whose later sample is in
 //!   motion;
 //! - **friction**: the current while moving per unit of speed, Σ current / Σ speed over the
-//!   telemetry samples in motion with force on and not stalled, in mA per mm/s (at least
-//!   [`MIN_SAMPLES`] samples);
-//! - **holding current**: the mean current over the telemetry samples holding with force on
-//!   and not stalled (at least [`MIN_SAMPLES`]);
+//!   current reads (telemetry samples and motion records) in motion with force on and not
+//!   stalled, in mA per mm/s (at least [`MIN_SAMPLES`] reads);
+//! - **holding current**: the mean current over the current reads holding with force on and
+//!   not stalled (at least [`MIN_SAMPLES`]);
 //! - **peak current**; **time stalled** (health records that say stalled, to the next that does
 //!   not or the run's end);
 //! - **peak** and **mean temperature** (mean over samples), **minutes above
@@ -438,8 +438,8 @@ impl Acc {
     }
 
     fn telemetry(&mut self, t: f64, current_a: f64, temperature_c: f64, flags: ReplyFlags) {
+        self.current(current_a);
         let f = &mut self.flight;
-        f.peak_a = Some(f.peak_a.map_or(current_a, |p| p.max(current_a)));
         f.peak_c = Some(f.peak_c.map_or(temperature_c, |p| p.max(temperature_c)));
         f.start_c.get_or_insert(temperature_c);
         self.temp_sum += temperature_c;
@@ -462,6 +462,12 @@ impl Acc {
             }
         }
         self.flags = flags;
+    }
+
+    /// A current read (with the full telemetry, or with the position between two full reads).
+    fn current(&mut self, current_a: f64) {
+        let f = &mut self.flight;
+        f.peak_a = Some(f.peak_a.map_or(current_a, |p| p.max(current_a)));
         if self.force_on()
             && !self.stalled
             && let Some(v) = self.speed
@@ -507,6 +513,10 @@ impl Acc {
                 );
             }
             RecordBody::Position { position, .. } => self.position(t, position.mm()),
+            RecordBody::Motion { motion: m, .. } => {
+                self.position(t, m.present_position.mm());
+                self.current(m.present_load.amps());
+            }
             RecordBody::Health {
                 health, stalled, ..
             } => self.health(t, *health, *stalled),

@@ -29,7 +29,7 @@ use super::format::{
 use super::rotate::{create_record_file, rotate, sync_dir};
 use crate::bus::{Goal, Health};
 use crate::mavlink::BridgeEvent;
-use crate::protocol::{MmCenti, ReplyFlags, Telemetry};
+use crate::protocol::{MmCenti, Motion, ReplyFlags, Telemetry};
 use std::fs::File;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
@@ -303,6 +303,21 @@ impl RecordHandle {
                 RecordBody::Position {
                     servo,
                     position,
+                    flags,
+                },
+            );
+        }
+    }
+
+    /// One reply of servo `servo`'s position, present time and current (registers 42–49),
+    /// received at `at`.
+    pub fn motion(&self, at: Instant, servo: usize, motion: Motion, flags: ReplyFlags) {
+        if let Some(servo) = self.servo_index(servo) {
+            self.record_at(
+                at,
+                RecordBody::Motion {
+                    servo,
+                    motion,
                     flags,
                 },
             );

@@ -791,6 +791,7 @@ mod tests {
             }),
             telemetry_at: age.map(|a| Instant::now() - a),
             position_at: None,
+            motion_at: None,
             age,
             flags: ReplyFlags(0),
             goal: None,
