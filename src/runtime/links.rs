@@ -14,9 +14,16 @@ use ::mavlink::error::{MessageReadError, MessageWriteError};
 use ::mavlink::{
     AsyncMavConnection, MAVLinkMessageRaw, MAVLinkV2MessageRaw, MavHeader, MavlinkReader, Message,
 };
+use nix::sys::socket::{
+    ControlMessageOwned, MsgFlags, SockaddrStorage, recvmsg, setsockopt, sockopt,
+};
+use std::io::IoSliceMut;
 use std::net::SocketAddr;
+use std::os::fd::AsRawFd;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
+use tokio::io::Interest;
 use tokio::net::UdpSocket;
 use tokio::sync::{Notify, mpsc, watch};
 use tokio::task::JoinHandle;
@@ -44,9 +51,68 @@ pub enum Link {
 pub struct UdpIn {
     socket: UdpSocket,
     peer: Mutex<Option<SocketAddr>>,
+    /// Datagrams the kernel dropped because the socket's receive buffer was full (the bridge
+    /// did not read in time), as `SO_RXQ_OVFL` counts them: the kernel tells the count with the
+    /// next datagram it queues after a drop. `None` where it cannot count.
+    lost: Option<AtomicU64>,
 }
 
 impl UdpIn {
+    /// Bind `local`, and ask the kernel to count the datagrams it drops for want of room.
+    async fn bind(local: &str) -> std::io::Result<Self> {
+        let socket = UdpSocket::bind(local).await?;
+        let lost = match setsockopt(&socket, sockopt::RxqOvfl, &1) {
+            Ok(()) => Some(AtomicU64::new(0)),
+            Err(e) => {
+                tracing::debug!(%local, "datagrams dropped on receipt are not counted: {e}");
+                None
+            }
+        };
+        Ok(UdpIn {
+            socket,
+            peer: Mutex::new(None),
+            lost,
+        })
+    }
+
+    /// Datagrams the kernel dropped before the bridge read them (`None`: not counted here).
+    pub fn lost(&self) -> Option<u64> {
+        self.lost.as_ref().map(|l| l.load(Ordering::Relaxed))
+    }
+
+    /// The next datagram into `buf`: its length and sender. Updates [`UdpIn::lost`].
+    async fn recv_from(&self, buf: &mut [u8]) -> std::io::Result<(usize, SocketAddr)> {
+        let fd = self.socket.as_raw_fd();
+        let (n, from, lost) = self
+            .socket
+            .async_io(Interest::READABLE, || {
+                let mut iov = [IoSliceMut::new(buf)];
+                let mut space = nix::cmsg_space!(u32);
+                let msg = recvmsg::<SockaddrStorage>(
+                    fd,
+                    &mut iov,
+                    Some(&mut space),
+                    MsgFlags::MSG_DONTWAIT,
+                )
+                .map_err(std::io::Error::from)?;
+                let lost = msg.cmsgs().ok().and_then(|mut cmsgs| {
+                    cmsgs.find_map(|c| match c {
+                        ControlMessageOwned::RxqOvfl(n) => Some(n),
+                        _ => None,
+                    })
+                });
+                let from = msg.address.as_ref().and_then(socket_addr);
+                Ok((msg.bytes, from, lost))
+            })
+            .await?;
+        if let (Some(counter), Some(total)) = (self.lost.as_ref(), lost) {
+            // The kernel's count is of the socket's life, in 32 bits: keep the larger.
+            counter.fetch_max(u64::from(total), Ordering::Relaxed);
+        }
+        let from =
+            from.ok_or_else(|| std::io::Error::other("a datagram without a sender address"))?;
+        Ok((n, from))
+    }
     /// Where replies go now (`None`: nobody has spoken yet).
     pub fn peer(&self) -> Option<SocketAddr> {
         *self.peer.lock().unwrap_or_else(PoisonError::into_inner)
@@ -69,11 +135,9 @@ pub async fn connect(address: &str) -> Result<Link, RunError> {
         source,
     };
     if let Some(local) = address.strip_prefix("udpin:") {
-        let socket = UdpSocket::bind(local).await.map_err(failed)?;
-        return Ok(Link::UdpIn(Arc::new(UdpIn {
-            socket,
-            peer: Mutex::new(None),
-        })));
+        return Ok(Link::UdpIn(Arc::new(
+            UdpIn::bind(local).await.map_err(failed)?,
+        )));
     }
     let mut conn = ::mavlink::connect_async::<MavMessage>(address)
         .await
@@ -90,10 +154,19 @@ impl Link {
     ) -> Result<(Vec<MAVLinkMessageRaw>, Option<SocketAddr>), MessageReadError> {
         match self {
             Link::UdpIn(udp) => {
-                let (n, from) = udp.socket.recv_from(buf).await?;
+                let (n, from) = udp.recv_from(buf).await?;
                 Ok((frames_of(&buf[..n]), Some(from)))
             }
             Link::Crate(conn) => Ok((vec![conn.recv_raw().await?], None)),
+        }
+    }
+
+    /// Datagrams the kernel dropped before the bridge read them: counted on `udpin` links
+    /// (0 on the others, which cannot tell).
+    pub fn lost(&self) -> u64 {
+        match self {
+            Link::UdpIn(udp) => udp.lost().unwrap_or(0),
+            Link::Crate(_) => 0,
         }
     }
 
@@ -115,6 +188,16 @@ impl Link {
             Link::Crate(conn) => conn.send_raw(frame).await,
         }
     }
+}
+
+/// A socket address of the IP families (a UDP socket's sender is one).
+fn socket_addr(address: &SockaddrStorage) -> Option<SocketAddr> {
+    if let Some(v4) = address.as_sockaddr_in() {
+        return Some(SocketAddr::V4((*v4).into()));
+    }
+    address
+        .as_sockaddr_in6()
+        .map(|v6| SocketAddr::V6((*v6).into()))
 }
 
 fn raw_bytes(frame: &MAVLinkMessageRaw) -> &[u8] {
@@ -263,6 +346,7 @@ pub fn spawn_reader(
 ) -> JoinHandle<()> {
     tokio::spawn(async move {
         let mut buf = vec![0u8; 65_536];
+        let mut lost = 0;
         loop {
             let (frames, from) = match link.recv(&mut buf).await {
                 Ok(received) => received,
@@ -272,6 +356,17 @@ pub fn spawn_reader(
                     continue;
                 }
             };
+            let now_lost = link.lost();
+            if now_lost > lost {
+                let message = "datagrams lost before the bridge read them: its socket's \
+                    receive buffer was full (the bridge was held up; the count is in sitl's view)";
+                if lost == 0 {
+                    tracing::warn!(%address, total = now_lost, "{message}");
+                } else {
+                    tracing::debug!(%address, total = now_lost, "{message}");
+                }
+                lost = now_lost;
+            }
             for frame in &frames {
                 let Some(accepted) = judge(frame, link_id, &address, signing.as_ref()) else {
                     continue;
@@ -403,4 +498,50 @@ impl Drop for LinkWriter {
 
 fn lock(outbox: &Mutex<Outbox>) -> MutexGuard<'_, Outbox> {
     outbox.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A `udpin` link that is not read while datagrams pour in counts the ones the kernel had no
+    /// room for: with those it did read, they make up every datagram sent.
+    #[tokio::test]
+    async fn datagrams_dropped_unread_are_counted() {
+        let Link::UdpIn(udp) = connect("udpin:127.0.0.1:0").await.unwrap() else {
+            panic!("udpin is the bridge's own socket");
+        };
+        assert_eq!(
+            udp.lost(),
+            Some(0),
+            "the kernel counts drops on this socket"
+        );
+        // A small receive buffer, whatever the machine's default (each datagram takes ~1 KiB).
+        setsockopt(&udp.socket, sockopt::RcvBuf, &4096).unwrap();
+        let to = udp.socket.local_addr().unwrap();
+        let sender = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        let sent = 1_000u64;
+        for i in 0..sent {
+            sender.send_to(&i.to_le_bytes(), to).unwrap();
+        }
+        let mut buf = [0u8; 64];
+        let mut received = 0u64;
+        while let Ok(Ok((n, from))) =
+            tokio::time::timeout(Duration::from_millis(200), udp.recv_from(&mut buf)).await
+        {
+            assert_eq!(n, 8);
+            assert_eq!(from, sender.local_addr().unwrap());
+            received += 1;
+        }
+        // The kernel tells the count with the next datagram queued after the drops (as the
+        // autopilot's next one is).
+        sender.send_to(&sent.to_le_bytes(), to).unwrap();
+        let (n, _) = udp.recv_from(&mut buf).await.unwrap();
+        assert_eq!(buf[..n], sent.to_le_bytes());
+        let sent = sent + 1;
+        received += 1;
+        let lost = udp.lost().unwrap();
+        assert!(lost > 0 && received > 0, "{received} received, {lost} lost");
+        assert_eq!(received + lost, sent, "{received} received, {lost} lost");
+    }
 }

@@ -29,7 +29,7 @@ use crate::protocol::ServoId;
 use crate::record::{RecordHandle, RecordLimits, RecordServo, Recorder, StatusFeed};
 use ::mavlink::MavHeader;
 use ::mavlink::dialects::common::MavMessage;
-use links::{LinkWriter, SharedSigning};
+use links::{Link, LinkWriter, SharedSigning};
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -88,6 +88,9 @@ pub struct BridgeView {
     /// Per link (the autopilot's, then the ground station's): outgoing messages dropped
     /// because the link did not keep up (see [`crate::mavlink::outbox`]).
     pub send_drops: Vec<u64>,
+    /// Per link: incoming datagrams the kernel dropped because the bridge did not read them in
+    /// time (counted on `udpin` links; 0 on the others).
+    pub receive_drops: Vec<u64>,
     /// Parameter changes handed to the mapping file's writer since the start (each one
     /// rewrite of the file, or a refusal by its reader).
     pub mapping_writes: u64,
@@ -411,6 +414,8 @@ struct Bridge {
     record: Option<RecordHandle>,
     signing: Option<SharedSigning>,
     writers: Vec<LinkWriter>,
+    /// The links (the autopilot's, then the ground station's), for what they count.
+    links: Vec<Link>,
     /// The links' readers and the buses' event forwarders.
     tasks: Vec<tokio::task::JoinHandle<()>>,
     messages: mpsc::Receiver<(LinkId, MavHeader, MavMessage)>,
@@ -466,6 +471,7 @@ impl Bridge {
         let (message_tx, messages) = mpsc::channel(1024);
         let mut tasks = Vec::new();
         let mut writers = Vec::new();
+        let link_list = links.clone();
         for (link_id, (link, address)) in links.into_iter().zip(addresses).enumerate() {
             writers.push(LinkWriter::spawn(link.clone(), link_id, signing.clone()));
             tasks.push(links::spawn_reader(
@@ -494,6 +500,7 @@ impl Bridge {
             record,
             signing,
             writers,
+            links: link_list,
             tasks,
             messages,
             bus_events,
@@ -676,6 +683,7 @@ impl Bridge {
                 .map(|s| s.lock().drops())
                 .unwrap_or_default(),
             send_drops: self.writers.iter().map(LinkWriter::dropped).collect(),
+            receive_drops: self.links.iter().map(Link::lost).collect(),
             mapping_writes: self.mapping_writes,
         });
     }

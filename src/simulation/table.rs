@@ -13,8 +13,9 @@ fn opt(v: Option<f32>, width: usize, decimals: usize) -> String {
 }
 
 /// What the links dropped, appended to the autopilot line: with signing on, the incoming
-/// messages refused; and the outgoing ones a link was too slow for (see
-/// [`crate::mavlink::outbox`]), once there are any. Empty when there is nothing to say.
+/// messages refused; the outgoing ones a link was too slow for (see
+/// [`crate::mavlink::outbox`]), once there are any; and the incoming datagrams the kernel
+/// dropped before the bridge read them, once there are any. Empty when there is nothing to say.
 pub fn drops_text(view: &BridgeView) -> String {
     let mut text = String::new();
     if !view.signing_drops.is_empty() {
@@ -32,6 +33,14 @@ pub fn drops_text(view: &BridgeView) -> String {
     if view.send_drops.iter().any(|d| *d > 0) {
         let per_link: Vec<String> = view.send_drops.iter().map(u64::to_string).collect();
         let _ = write!(text, "   unsent (link too slow): {}", per_link.join("/"));
+    }
+    if view.receive_drops.iter().any(|d| *d > 0) {
+        let per_link: Vec<String> = view.receive_drops.iter().map(u64::to_string).collect();
+        let _ = write!(
+            text,
+            "   lost unread (bridge held up): {}",
+            per_link.join("/")
+        );
     }
     text
 }
@@ -164,5 +173,20 @@ mod tests {
         view.send_drops = vec![0, 1234];
         let first = render(&view).lines().next().unwrap_or("").to_string();
         assert!(first.ends_with("unsent (link too slow): 0/1234"), "{first}");
+    }
+
+    #[test]
+    fn the_autopilot_line_shows_datagrams_lost_unread_once_there_are_any() {
+        let mut view = BridgeView {
+            receive_drops: vec![0, 0],
+            ..BridgeView::default()
+        };
+        assert!(!render(&view).contains("lost unread"));
+        view.receive_drops = vec![17, 0];
+        let first = render(&view).lines().next().unwrap_or("").to_string();
+        assert!(
+            first.ends_with("lost unread (bridge held up): 17/0"),
+            "{first}"
+        );
     }
 }
