@@ -361,43 +361,65 @@ fn writer_throughput() {
     );
 }
 
+/// Servo `id` of the bus "wing", online, with nothing read yet.
+fn online_servo(id: u8, name: &str) -> lj9da_bridge::bus::ServoStatus {
+    use lj9da_bridge::bus::{ForceState, Health, ServoStatus};
+    ServoStatus {
+        id: lj9da_bridge::protocol::ServoId::new(id).unwrap(),
+        name: name.into(),
+        health: Health::Online,
+        telemetry: None,
+        telemetry_at: None,
+        position_at: None,
+        motion_at: None,
+        age: None,
+        flags: ReplyFlags(0),
+        goal: None,
+        force: ForceState::On,
+        stalled: false,
+        identity: Default::default(),
+        consecutive_timeouts: 0,
+        telemetry_count: 0,
+        answered: 0,
+        timeouts: 0,
+        degraded: None,
+    }
+}
+
+/// The bus "wing" with `servo` alone, at `at`.
+fn wing(servo: lj9da_bridge::bus::ServoStatus, at: Instant) -> lj9da_bridge::bus::BusStatus {
+    lj9da_bridge::bus::BusStatus {
+        name: "wing".into(),
+        port_open: true,
+        servos: vec![servo],
+        counters: Default::default(),
+        at,
+        telemetry_asked_hz: None,
+        thread: Default::default(),
+    }
+}
+
 #[test]
 fn reads_between_full_polls_are_recorded_once_as_position_and_motion_records() {
-    use lj9da_bridge::bus::{BusCounters, BusStatus, ForceState, Health, ServoStatus};
-    use lj9da_bridge::protocol::ServoId;
+    use lj9da_bridge::bus::ServoStatus;
     use lj9da_bridge::record::StatusFeed;
 
     let dir = TempDir::new("pos");
     let handle = Recorder::start(dir.path(), &servos(), RecordLimits::default()).unwrap();
     let mut feed = StatusFeed::new(handle.clone(), &servos());
     let t0 = Instant::now();
-    let status = |telemetry: Telemetry, telemetry_at, position_at, motion_at| BusStatus {
-        name: "wing".into(),
-        port_open: true,
-        servos: vec![ServoStatus {
-            id: ServoId::new(2).unwrap(),
-            name: "right".into(),
-            health: Health::Online,
+    let status = |telemetry: Telemetry, telemetry_at, position_at, motion_at| {
+        let servo = ServoStatus {
             telemetry: Some(telemetry),
             telemetry_at: Some(telemetry_at),
             position_at,
             motion_at,
-            age: None,
             flags: ReplyFlags(0x20),
-            goal: None,
-            force: ForceState::On,
-            stalled: false,
-            identity: Default::default(),
-            consecutive_timeouts: 0,
             telemetry_count: 1,
             answered: 1,
-            timeouts: 0,
-            degraded: None,
-        }],
-        counters: BusCounters::default(),
-        at: t0 + Duration::from_millis(30),
-        telemetry_asked_hz: None,
-        thread: Default::default(),
+            ..online_servo(2, "right")
+        };
+        wing(servo, t0 + Duration::from_millis(30))
     };
     let full = sample(100);
     let mut moved = full;
@@ -497,41 +519,20 @@ fn reads_between_full_polls_are_recorded_once_as_position_and_motion_records() {
 
 #[test]
 fn reply_counts_are_recorded_when_they_change_at_most_once_a_second() {
-    use lj9da_bridge::bus::{BusCounters, BusStatus, ForceState, Health, ServoStatus};
-    use lj9da_bridge::protocol::ServoId;
+    use lj9da_bridge::bus::ServoStatus;
     use lj9da_bridge::record::StatusFeed;
 
     let dir = TempDir::new("replies");
     let handle = Recorder::start(dir.path(), &servos(), RecordLimits::default()).unwrap();
     let mut feed = StatusFeed::new(handle.clone(), &servos());
     let t0 = handle.start_instant();
-    let status = |ms: u64, answered: u64, timeouts: u64| BusStatus {
-        name: "wing".into(),
-        port_open: true,
-        servos: vec![ServoStatus {
-            id: ServoId::new(1).unwrap(),
-            name: "left".into(),
-            health: Health::Online,
-            telemetry: None,
-            telemetry_at: None,
-            position_at: None,
-            motion_at: None,
-            age: None,
-            flags: ReplyFlags(0),
-            goal: None,
-            force: ForceState::On,
-            stalled: false,
-            identity: Default::default(),
-            consecutive_timeouts: 0,
-            telemetry_count: 0,
+    let status = |ms: u64, answered: u64, timeouts: u64| {
+        let servo = ServoStatus {
             answered,
             timeouts,
-            degraded: None,
-        }],
-        counters: BusCounters::default(),
-        at: t0 + Duration::from_millis(ms),
-        telemetry_asked_hz: None,
-        thread: Default::default(),
+            ..online_servo(1, "left")
+        };
+        wing(servo, t0 + Duration::from_millis(ms))
     };
     // Nothing asked yet: no record. Then the first counts; changes within a second wait; the
     // same counts a second later are not written again.
@@ -562,4 +563,54 @@ fn reply_counts_are_recorded_when_they_change_at_most_once_a_second() {
         })
         .collect();
     assert_eq!(replies, [(100, 5, 1), (1_100, 90, 2), (3_000, 95, 2)]);
+}
+
+#[test]
+fn telemetry_samples_the_feed_never_saw_are_counted_and_said_in_the_record() {
+    use lj9da_bridge::bus::ServoStatus;
+    use lj9da_bridge::record::StatusFeed;
+
+    let dir = TempDir::new("missed");
+    let handle = Recorder::start(dir.path(), &servos(), RecordLimits::default()).unwrap();
+    let mut feed = StatusFeed::new(handle.clone(), &servos());
+    let t0 = handle.start_instant();
+    let status = |ms: u64, count: u64| {
+        let servo = ServoStatus {
+            telemetry: Some(sample(100)),
+            telemetry_at: Some(t0 + Duration::from_millis(ms)),
+            telemetry_count: count,
+            ..online_servo(1, "left")
+        };
+        wing(servo, t0 + Duration::from_millis(ms))
+    };
+    // Samples 1, 2 and 5 seen: 3 and 4 were replaced before the feed looked.
+    for (ms, count) in [(10, 1), (30, 2), (90, 5)] {
+        feed.observe(&status(ms, count));
+    }
+    assert_eq!(feed.missed_samples(), 2);
+    let path = handle.path().unwrap();
+    handle.finish();
+    let rec = read_record(&path).unwrap();
+    let warnings: Vec<&str> = rec
+        .records
+        .iter()
+        .filter_map(|r| match &r.body {
+            RecordBody::Event {
+                servo: Some(0),
+                severity: 4,
+                text,
+            } => Some(text.as_str()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        warnings,
+        ["2 telemetry samples not recorded (replaced before the record saw them)"]
+    );
+    let samples = rec
+        .records
+        .iter()
+        .filter(|r| matches!(r.body, RecordBody::Telemetry { servo: 0, .. }))
+        .count();
+    assert_eq!(samples, 3);
 }

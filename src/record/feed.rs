@@ -10,8 +10,8 @@
 //! called in the bus thread with every status, so it sees every sample. Fed from a status watch
 //! ([`BusHandle::watch_status`](crate::bus::BusHandle::watch_status)), which keeps only the
 //! newest status, a sample replaced before the feed looked is not recorded;
-//! [`StatusFeed::missed_samples`] counts those (from the servo's telemetry counter), so the
-//! loss is known, not silent. Each servo's reply counts (good, and garbled or missing) are
+//! [`StatusFeed::missed_samples`] counts those (from the servo's telemetry counter), and the
+//! record says so in a warning event, so the loss is known, not silent. Each servo's reply counts (good, and garbled or missing) are
 //! recorded when they changed, at most once per [`REPLIES_EVERY`].
 //!
 //! ```no_run
@@ -84,10 +84,21 @@ impl StatusFeed {
                 && seen.telemetry_at != Some(at)
             {
                 if let Some(before) = seen.telemetry_count {
-                    self.missed += servo
+                    let missed = servo
                         .telemetry_count
                         .saturating_sub(before)
                         .saturating_sub(1);
+                    if missed > 0 {
+                        self.missed += missed;
+                        self.handle.event(
+                            Some(index),
+                            severity::WARNING,
+                            format!(
+                                "{missed} telemetry samples not recorded (replaced before the \
+                                 record saw them)"
+                            ),
+                        );
+                    }
                 }
                 self.handle.telemetry(at, index, &telemetry, servo.flags);
                 seen.telemetry_at = Some(at);
