@@ -146,6 +146,20 @@ async fn the_ground_station_sees_the_bridge_and_every_servo() {
     chain.stop().await;
 }
 
+/// The bridge often starts before the autopilot. Its view (what `sitl` shows) follows the
+/// servos all the same: each comes online and shows its readings, with no message yet.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn before_any_autopilot_the_view_shows_every_servo_online_with_readings() {
+    let chain = Chain::start(FOUR_SERVOS, false).await;
+    chain
+        .wait_view("every servo online, with a position", SECS(10), |v| {
+            all_online(v) && v.servos.iter().all(|s| s.report.position_mm.is_some())
+        })
+        .await;
+    assert!(chain.view.borrow().autopilot.is_none());
+    chain.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn failsafe_is_entered_and_left_and_both_are_announced() {
     let chain = Chain::start(FOUR_SERVOS, true).await;

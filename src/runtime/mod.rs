@@ -45,6 +45,9 @@ const READY_MESSAGES: usize = 8;
 
 /// How often the view is refreshed at most.
 const VIEW_PERIOD: std::time::Duration = std::time::Duration::from_millis(50);
+/// How old the view may grow while nothing else wakes the loop (no autopilot yet, or one that
+/// went quiet): the live table redraws five times a second.
+const VIEW_STALE: std::time::Duration = std::time::Duration::from_millis(200);
 
 /// Why the bridge could not start.
 #[derive(Debug, Error)]
@@ -435,6 +438,8 @@ enum Input {
     Edited(ParamSet, Result<Config, String>),
     BusEvent(usize, BusEvent),
     Timeout,
+    /// Nothing happened for [`VIEW_STALE`]: only the view is due.
+    ViewDue,
 }
 
 impl Bridge {
@@ -541,6 +546,7 @@ impl Bridge {
                     let (reports, _) = self.buses.reports(&self.cfg);
                     self.core.handle_timeout(Instant::now(), &reports);
                 }
+                Input::ViewDue => {}
             }
             let mut goals = vec![Vec::new(); self.buses.handles.len()];
             self.collect_goals(&mut goals);
@@ -570,9 +576,16 @@ impl Bridge {
     }
 
     /// Wait for the next input: a stop first, then messages, finished parameter changes, bus
-    /// events, and the core's deadline (none before an autopilot is found: the loop sleeps).
+    /// events, and the core's deadline (none before an autopilot is found: the loop sleeps,
+    /// waking only to refresh a view, if it has one, every [`VIEW_STALE`]).
     async fn next_input(&mut self, stop: &mut watch::Receiver<bool>) -> Input {
-        let deadline = self.core.poll_timeout().map(tokio::time::Instant::from_std);
+        let core_deadline = self.core.poll_timeout();
+        let view_deadline = self.view.as_ref().map(|_| self.view_at + VIEW_STALE);
+        let deadline = [core_deadline, view_deadline]
+            .into_iter()
+            .flatten()
+            .min()
+            .map(tokio::time::Instant::from_std);
         tokio::select! {
             biased;
             changed = stop.changed() => {
@@ -581,7 +594,13 @@ impl Bridge {
             Some((link, header, msg)) = self.messages.recv() => Input::Message(link, header, msg),
             Some((set, result)) = self.edited.recv() => Input::Edited(set, result),
             Some((bus, event)) = self.bus_events.recv() => Input::BusEvent(bus, event),
-            _ = sleep_until(deadline) => Input::Timeout,
+            _ = sleep_until(deadline) => {
+                if core_deadline.is_some_and(|at| at <= Instant::now()) {
+                    Input::Timeout
+                } else {
+                    Input::ViewDue
+                }
+            }
         }
     }
 
