@@ -32,6 +32,8 @@ use super::RunError;
 
 /// How long a reader waits after a receive error before it reads again.
 const RECEIVE_RETRY: Duration = Duration::from_millis(20);
+/// How often a link through the `mavlink` crate that is down is opened again.
+const RECONNECT_EVERY: Duration = Duration::from_secs(1);
 /// How long after a failed write of a timestamp reservation it is tried again.
 const RESERVATION_RETRY: Duration = Duration::from_secs(1);
 
@@ -40,8 +42,129 @@ const RESERVATION_RETRY: Duration = Duration::from_secs(1);
 pub enum Link {
     /// `udpin`: the bridge's own socket (see [`UdpIn`]).
     UdpIn(Arc<UdpIn>),
-    /// Every other kind of address: the `mavlink` crate's connection.
-    Crate(Arc<::mavlink::AsyncConnection<MavMessage>>),
+    /// Every other kind of address: the `mavlink` crate's connection, opened again whenever
+    /// it fails (see [`CrateLink`]).
+    Crate(Arc<CrateLink>),
+}
+
+type Connection = Arc<::mavlink::AsyncConnection<MavMessage>>;
+
+/// A link through the `mavlink` crate (`tcpout`, `tcpin`, `udpout`, `udpbcast`, `serial`). The
+/// autopilot may not be there yet when the bridge starts (SITL, or a flight controller still
+/// booting behind a USB port), and may go away (a reboot ends a TCP connection, a USB port
+/// disappears): a task of the link's own opens the connection, and opens it again after a
+/// failure, every [`RECONNECT_EVERY`]. Meanwhile the reader waits and the writer's frames are
+/// dropped (a link that is down takes nothing).
+pub struct CrateLink {
+    address: String,
+    /// The open connection (`None` while it is down).
+    open: watch::Sender<Option<Connection>>,
+    /// Wakes the opening task when the connection failed (or the link is dropped).
+    failed: Arc<Notify>,
+}
+
+impl Drop for CrateLink {
+    fn drop(&mut self) {
+        self.failed.notify_one();
+    }
+}
+
+impl CrateLink {
+    /// The link to `address`, and its opening task (which ends when the link is dropped).
+    fn start(address: &str) -> Arc<Self> {
+        let link = Arc::new(CrateLink {
+            address: address.to_string(),
+            open: watch::Sender::new(None),
+            failed: Arc::new(Notify::new()),
+        });
+        let (weak, failed, address) = (
+            Arc::downgrade(&link),
+            link.failed.clone(),
+            address.to_string(),
+        );
+        // The task holds the link only between its waits, so that dropping the link ends it.
+        tokio::spawn(async move {
+            let mut failures = 0u64;
+            loop {
+                if weak.strong_count() == 0 {
+                    return;
+                }
+                let opened = ::mavlink::connect_async::<MavMessage>(&address).await;
+                let Some(link) = weak.upgrade() else { return };
+                match opened {
+                    Ok(mut conn) => {
+                        conn.set_allow_recv_any_version(true);
+                        if failures > 0 {
+                            tracing::info!(%address, "MAVLink connection open");
+                        }
+                        failures = 0;
+                        let wait = failed.notified();
+                        link.open.send_replace(Some(Arc::new(conn)));
+                        drop(link);
+                        wait.await;
+                    }
+                    Err(e) => {
+                        if failures == 0 {
+                            tracing::warn!(
+                                %address,
+                                "cannot open the MAVLink connection: {e}; trying again every {} s, the servos hold their goals meanwhile",
+                                RECONNECT_EVERY.as_secs()
+                            );
+                        }
+                        failures += 1;
+                        drop(link);
+                        tokio::time::sleep(RECONNECT_EVERY).await;
+                    }
+                }
+            }
+        });
+        link
+    }
+
+    /// The open connection, waiting for one while the link is down.
+    async fn connection(&self) -> Connection {
+        let mut open = self.open.subscribe();
+        loop {
+            if let Some(conn) = open.borrow_and_update().clone() {
+                return conn;
+            }
+            // The sender lives as long as `self`.
+            let _ = open.changed().await;
+        }
+    }
+
+    /// `conn` failed with `e`: when `e` means the connection is gone, it is dropped (if it is
+    /// still the open one) and opened again.
+    fn check(&self, conn: &Connection, e: &std::io::Error) {
+        if !connection_gone(e) {
+            return;
+        }
+        let dropped = self.open.send_if_modified(|open| {
+            let same = open.as_ref().is_some_and(|c| Arc::ptr_eq(c, conn));
+            if same {
+                *open = None;
+            }
+            same
+        });
+        if dropped {
+            tracing::warn!(address = %self.address, "MAVLink connection lost: {e}; opening it again");
+            self.failed.notify_one();
+        }
+    }
+}
+
+/// Whether an error of a connection's read or write means it is gone for good (the peer
+/// closed it, or its device disappeared), rather than one bad moment (a UDP peer not
+/// listening yet answers with ECONNREFUSED, and the next datagram may get through).
+fn connection_gone(e: &std::io::Error) -> bool {
+    use std::io::ErrorKind::*;
+    matches!(
+        e.kind(),
+        UnexpectedEof | ConnectionReset | ConnectionAborted | BrokenPipe | NotConnected
+    ) || matches!(
+        e.raw_os_error(),
+        Some(libc::EIO | libc::ENXIO | libc::ENODEV | libc::EBADF)
+    )
 }
 
 /// A `udpin` link. The `mavlink` crate's replies to whoever sent the last datagram, a dropped
@@ -139,11 +262,7 @@ pub async fn connect(address: &str) -> Result<Link, RunError> {
             UdpIn::bind(local).await.map_err(failed)?,
         )));
     }
-    let mut conn = ::mavlink::connect_async::<MavMessage>(address)
-        .await
-        .map_err(failed)?;
-    conn.set_allow_recv_any_version(true);
-    Ok(Link::Crate(Arc::new(conn)))
+    Ok(Link::Crate(CrateLink::start(address)))
 }
 
 impl Link {
@@ -157,7 +276,17 @@ impl Link {
                 let (n, from) = udp.recv_from(buf).await?;
                 Ok((frames_of(&buf[..n]), Some(from)))
             }
-            Link::Crate(conn) => Ok((vec![conn.recv_raw().await?], None)),
+            Link::Crate(link) => {
+                let conn = link.connection().await;
+                match conn.recv_raw().await {
+                    Ok(frame) => Ok((vec![frame], None)),
+                    Err(MessageReadError::Io(e)) => {
+                        link.check(&conn, &e);
+                        Err(MessageReadError::Io(e))
+                    }
+                    Err(e) => Err(e),
+                }
+            }
         }
     }
 
@@ -175,7 +304,7 @@ impl Link {
     fn can_send(&self) -> bool {
         match self {
             Link::UdpIn(udp) => udp.peer().is_some(),
-            Link::Crate(_) => true,
+            Link::Crate(link) => link.open.borrow().is_some(),
         }
     }
 
@@ -185,7 +314,16 @@ impl Link {
                 Some(peer) => Ok(udp.socket.send_to(raw_bytes(frame), peer).await?),
                 None => Ok(0),
             },
-            Link::Crate(conn) => conn.send_raw(frame).await,
+            Link::Crate(link) => {
+                let Some(conn) = link.open.borrow().clone() else {
+                    return Ok(0);
+                };
+                let sent = conn.send_raw(frame).await;
+                if let Err(MessageWriteError::Io(e)) = &sent {
+                    link.check(&conn, e);
+                }
+                sent
+            }
         }
     }
 }
@@ -543,5 +681,65 @@ mod tests {
         let lost = udp.lost().unwrap();
         assert!(lost > 0 && received > 0, "{received} received, {lost} lost");
         assert_eq!(received + lost, sent, "{received} received, {lost} lost");
+    }
+
+    /// A heartbeat frame numbered `sequence`, as the autopilot sends it.
+    fn heartbeat(sequence: u8) -> Vec<u8> {
+        use ::mavlink::dialects::common::HEARTBEAT_DATA;
+        let header = MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence,
+        };
+        let mut bytes = Vec::new();
+        ::mavlink::write_v2_msg(
+            &mut bytes,
+            header,
+            &MavMessage::HEARTBEAT(HEARTBEAT_DATA::default()),
+        )
+        .unwrap();
+        bytes
+    }
+
+    /// A `tcpout` link whose peer is not there yet opens when it comes, and opens again after
+    /// the peer closed the connection (an autopilot's reboot), with frames flowing each time.
+    #[tokio::test]
+    async fn a_tcp_link_opens_when_its_peer_comes_and_again_after_it_left() {
+        use tokio::io::AsyncWriteExt;
+        let wait = Duration::from_secs(10);
+        // A port nobody listens on.
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let link = connect(&format!("tcpout:127.0.0.1:{port}")).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert!(!link.can_send(), "nobody listens yet");
+        let listener = tokio::net::TcpListener::bind(("127.0.0.1", port))
+            .await
+            .unwrap();
+        let mut buf = vec![0u8; 1024];
+        for sequence in [7, 8] {
+            let (mut peer, _) = tokio::time::timeout(wait, listener.accept())
+                .await
+                .expect("the link connects within a few retries")
+                .unwrap();
+            peer.write_all(&heartbeat(sequence)).await.unwrap();
+            let (frames, _) = tokio::time::timeout(wait, link.recv(&mut buf))
+                .await
+                .expect("the frame arrives")
+                .unwrap();
+            assert_eq!(frames.len(), 1);
+            assert_eq!(frames[0].sequence(), sequence);
+            assert!(link.can_send());
+            // The autopilot reboots: the reader sees the connection end, and the link is down
+            // until it is open again.
+            drop(peer);
+            let ended = tokio::time::timeout(wait, link.recv(&mut buf))
+                .await
+                .unwrap();
+            assert!(ended.is_err(), "{:?}", ended.map(|(f, _)| f.len()));
+        }
     }
 }
