@@ -107,7 +107,7 @@ impl CrateLink {
                         if failures == 0 {
                             tracing::warn!(
                                 %address,
-                                "cannot open the MAVLink connection: {e}; trying again every {} s, the servos hold their goals meanwhile",
+                                "cannot open the MAVLink connection: {e}; trying again every {} s, the buses run meanwhile",
                                 RECONNECT_EVERY.as_secs()
                             );
                         }
@@ -236,6 +236,7 @@ impl UdpIn {
             from.ok_or_else(|| std::io::Error::other("a datagram without a sender address"))?;
         Ok((n, from))
     }
+
     /// Where replies go now (`None`: nobody has spoken yet).
     pub fn peer(&self) -> Option<SocketAddr> {
         *self.peer.lock().unwrap_or_else(PoisonError::into_inner)
@@ -252,6 +253,8 @@ pub fn frames_of(datagram: &[u8]) -> Vec<MAVLinkMessageRaw> {
     std::iter::from_fn(|| reader.read_any_raw_message::<MavMessage>().ok()).collect()
 }
 
+/// The link to `address`: a `udpin` socket is bound now (an error if it cannot be); the other
+/// kinds open in the background, and again whenever they fail (see [`CrateLink`]).
 pub async fn connect(address: &str) -> Result<Link, RunError> {
     let failed = |source| RunError::Mavlink {
         address: address.to_string(),
