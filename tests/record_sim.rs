@@ -201,7 +201,8 @@ async fn a_simulated_run_is_recorded_and_its_summary_matches_the_simulation() {
     );
     assert!(right.peak_current_a().unwrap() > 1.5);
     // The reads of position and current between two full ones are recorded with their current:
-    // the stall current shows in them too.
+    // the stall current shows in them too. (The feed here looks at the status watch, which keeps
+    // the newest status only: a busy machine may show it fewer of them.)
     let stall_motions = rec
         .records
         .iter()
@@ -211,7 +212,7 @@ async fn a_simulated_run_is_recorded_and_its_summary_matches_the_simulation() {
         })
         .count();
     assert!(
-        stall_motions >= 5,
+        stall_motions >= 1,
         "{stall_motions} motion records at stall current"
     );
     assert!(right.max_settled_error_mm.unwrap() > 5.0);
