@@ -3,16 +3,17 @@
 //! A [`StatusFeed`] is handed the [`BusStatus`]es a bus publishes and records what is new in
 //! them: each servo's telemetry sample and each read of its position (and current) between two
 //! full ones (once, stamped with the time its reply arrived), and its health or stall state
-//! when either changes. It finds a servo's index in the record by its
-//! bus name and ID. Bus events can be recorded through it too.
+//! when either changes. It finds a servo's index in the record by its bus name and ID. Bus
+//! events can be recorded through it too.
 //!
 //! As the bus's status observer ([`spawn_bus_observed`](crate::bus::spawn_bus_observed)) it is
 //! called in the bus thread with every status, so it sees every sample. Fed from a status watch
 //! ([`BusHandle::watch_status`](crate::bus::BusHandle::watch_status)), which keeps only the
 //! newest status, a sample replaced before the feed looked is not recorded;
 //! [`StatusFeed::missed_samples`] counts those (from the servo's telemetry counter), and the
-//! record says so in a warning event, so the loss is known, not silent. Each servo's reply counts (good, and garbled or missing) are
-//! recorded when they changed, at most once per [`REPLIES_EVERY`].
+//! record says so in a warning event, so the loss is known, not silent. Each servo's reply
+//! counts (good, and garbled or missing) are recorded when they changed, at most once per
+//! [`REPLIES_EVERY`].
 //!
 //! ```no_run
 //! # fn feed(cfg: lj9da_bridge::bus::BusConfig, port: std::path::PathBuf,
