@@ -178,11 +178,14 @@ pub struct UdpIn {
     /// did not read in time), as `SO_RXQ_OVFL` counts them: the kernel tells the count with the
     /// next datagram it queues after a drop. `None` where it cannot count.
     lost: Option<AtomicU64>,
+    /// The link's address (`udpin:…`), for the log.
+    address: String,
 }
 
 impl UdpIn {
-    /// Bind `local`, and ask the kernel to count the datagrams it drops for want of room.
-    async fn bind(local: &str) -> std::io::Result<Self> {
+    /// Bind `local` (of the link `address`), and ask the kernel to count the datagrams it drops
+    /// for want of room.
+    async fn bind(address: &str, local: &str) -> std::io::Result<Self> {
         let socket = UdpSocket::bind(local).await?;
         let lost = match setsockopt(&socket, sockopt::RxqOvfl, &1) {
             Ok(()) => Some(AtomicU64::new(0)),
@@ -195,6 +198,7 @@ impl UdpIn {
             socket,
             peer: Mutex::new(None),
             lost,
+            address: address.to_string(),
         })
     }
 
@@ -203,7 +207,8 @@ impl UdpIn {
         self.lost.as_ref().map(|l| l.load(Ordering::Relaxed))
     }
 
-    /// The next datagram into `buf`: its length and sender. Updates [`UdpIn::lost`].
+    /// The next datagram into `buf`: its length and sender. Updates [`UdpIn::lost`], and logs
+    /// its growth (the first time as a warning).
     async fn recv_from(&self, buf: &mut [u8]) -> std::io::Result<(usize, SocketAddr)> {
         let fd = self.socket.as_raw_fd();
         let (n, from, lost) = self
@@ -230,7 +235,17 @@ impl UdpIn {
             .await?;
         if let (Some(counter), Some(total)) = (self.lost.as_ref(), lost) {
             // The kernel's count is of the socket's life, in 32 bits: keep the larger.
-            counter.fetch_max(u64::from(total), Ordering::Relaxed);
+            let total = u64::from(total);
+            let before = counter.fetch_max(total, Ordering::Relaxed);
+            if total > before {
+                let message = "datagrams lost before the bridge read them: its socket's \
+                    receive buffer was full (the bridge was held up; the count is in sitl's view)";
+                if before == 0 {
+                    tracing::warn!(address = %self.address, total, "{message}");
+                } else {
+                    tracing::debug!(address = %self.address, total, "{message}");
+                }
+            }
         }
         let from =
             from.ok_or_else(|| std::io::Error::other("a datagram without a sender address"))?;
@@ -262,7 +277,7 @@ pub async fn connect(address: &str) -> Result<Link, RunError> {
     };
     if let Some(local) = address.strip_prefix("udpin:") {
         return Ok(Link::UdpIn(Arc::new(
-            UdpIn::bind(local).await.map_err(failed)?,
+            UdpIn::bind(address, local).await.map_err(failed)?,
         )));
     }
     Ok(Link::Crate(CrateLink::start(address)))
@@ -487,7 +502,6 @@ pub fn spawn_reader(
 ) -> JoinHandle<()> {
     tokio::spawn(async move {
         let mut buf = vec![0u8; 65_536];
-        let mut lost = 0;
         loop {
             let (frames, from) = match link.recv(&mut buf).await {
                 Ok(received) => received,
@@ -497,17 +511,6 @@ pub fn spawn_reader(
                     continue;
                 }
             };
-            let now_lost = link.lost();
-            if now_lost > lost {
-                let message = "datagrams lost before the bridge read them: its socket's \
-                    receive buffer was full (the bridge was held up; the count is in sitl's view)";
-                if lost == 0 {
-                    tracing::warn!(%address, total = now_lost, "{message}");
-                } else {
-                    tracing::debug!(%address, total = now_lost, "{message}");
-                }
-                lost = now_lost;
-            }
             for frame in &frames {
                 let Some(accepted) = judge(frame, link_id, &address, signing.as_ref()) else {
                     continue;

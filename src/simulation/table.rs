@@ -30,17 +30,14 @@ pub fn drops_text(view: &BridgeView) -> String {
             sum(|d| d.old_timestamp)
         );
     }
-    if view.send_drops.iter().any(|d| *d > 0) {
-        let per_link: Vec<String> = view.send_drops.iter().map(u64::to_string).collect();
-        let _ = write!(text, "   unsent (link too slow): {}", per_link.join("/"));
-    }
-    if view.receive_drops.iter().any(|d| *d > 0) {
-        let per_link: Vec<String> = view.receive_drops.iter().map(u64::to_string).collect();
-        let _ = write!(
-            text,
-            "   lost unread (bridge held up): {}",
-            per_link.join("/")
-        );
+    for (label, counts) in [
+        ("unsent (link too slow)", &view.send_drops),
+        ("lost unread (bridge held up)", &view.receive_drops),
+    ] {
+        if counts.iter().any(|d| *d > 0) {
+            let per_link: Vec<String> = counts.iter().map(u64::to_string).collect();
+            let _ = write!(text, "   {label}: {}", per_link.join("/"));
+        }
     }
     text
 }
