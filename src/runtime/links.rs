@@ -748,4 +748,52 @@ mod tests {
             assert!(ended.is_err(), "{:?}", ended.map(|(f, _)| f.len()));
         }
     }
+
+    /// A `tcpin` link does not hold the bridge's start until a client connects: it is there at
+    /// once, with nowhere to send. A client's frames arrive; when the client leaves, the link
+    /// listens again and takes the next one (a ground station that reconnects).
+    #[tokio::test]
+    async fn a_tcp_listening_link_takes_a_client_and_the_next_after_it_left() {
+        use tokio::io::AsyncWriteExt;
+        let wait = Duration::from_secs(10);
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let link = tokio::time::timeout(wait, connect(&format!("tcpin:127.0.0.1:{port}")))
+            .await
+            .expect("the link is made without waiting for a client")
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert!(!link.can_send(), "no client yet");
+        let mut buf = vec![0u8; 1024];
+        for sequence in [3, 4] {
+            // The listener may not be bound yet (it is, again, after a retry).
+            let started = tokio::time::Instant::now();
+            let mut client = loop {
+                match tokio::net::TcpStream::connect(("127.0.0.1", port)).await {
+                    Ok(client) => break client,
+                    Err(e) if started.elapsed() < wait => {
+                        tracing::debug!("not listening yet: {e}");
+                        tokio::time::sleep(Duration::from_millis(50)).await;
+                    }
+                    Err(e) => panic!("the link listens again within {wait:?}: {e}"),
+                }
+            };
+            client.write_all(&heartbeat(sequence)).await.unwrap();
+            let (frames, _) = tokio::time::timeout(wait, link.recv(&mut buf))
+                .await
+                .expect("the frame arrives")
+                .unwrap();
+            assert_eq!(frames.len(), 1);
+            assert_eq!(frames[0].sequence(), sequence);
+            assert!(link.can_send());
+            drop(client);
+            let ended = tokio::time::timeout(wait, link.recv(&mut buf))
+                .await
+                .unwrap();
+            assert!(ended.is_err(), "{:?}", ended.map(|(f, _)| f.len()));
+        }
+    }
 }
