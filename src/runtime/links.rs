@@ -707,45 +707,55 @@ mod tests {
         bytes
     }
 
+    /// A TCP port nobody listens on.
+    fn unused_port() -> u16 {
+        std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port()
+    }
+
+    /// `peer`, connected to `link`, sends a heartbeat numbered `sequence` and closes the
+    /// connection: the frame arrives, and the link's next read fails (the link is down until
+    /// it is open again).
+    async fn one_heartbeat_then_gone(link: &Link, mut peer: tokio::net::TcpStream, sequence: u8) {
+        use tokio::io::AsyncWriteExt;
+        let wait = Duration::from_secs(10);
+        let mut buf = vec![0u8; 1024];
+        peer.write_all(&heartbeat(sequence)).await.unwrap();
+        let (frames, _) = tokio::time::timeout(wait, link.recv(&mut buf))
+            .await
+            .expect("the frame arrives")
+            .unwrap();
+        assert_eq!(frames.len(), 1);
+        assert_eq!(frames[0].sequence(), sequence);
+        assert!(link.can_send());
+        drop(peer);
+        let ended = tokio::time::timeout(wait, link.recv(&mut buf))
+            .await
+            .unwrap();
+        assert!(ended.is_err(), "{:?}", ended.map(|(f, _)| f.len()));
+    }
+
     /// A `tcpout` link whose peer is not there yet opens when it comes, and opens again after
     /// the peer closed the connection (an autopilot's reboot), with frames flowing each time.
     #[tokio::test]
     async fn a_tcp_link_opens_when_its_peer_comes_and_again_after_it_left() {
-        use tokio::io::AsyncWriteExt;
         let wait = Duration::from_secs(10);
-        // A port nobody listens on.
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
+        let port = unused_port();
         let link = connect(&format!("tcpout:127.0.0.1:{port}")).await.unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;
         assert!(!link.can_send(), "nobody listens yet");
         let listener = tokio::net::TcpListener::bind(("127.0.0.1", port))
             .await
             .unwrap();
-        let mut buf = vec![0u8; 1024];
         for sequence in [7, 8] {
-            let (mut peer, _) = tokio::time::timeout(wait, listener.accept())
+            let (peer, _) = tokio::time::timeout(wait, listener.accept())
                 .await
                 .expect("the link connects within a few retries")
                 .unwrap();
-            peer.write_all(&heartbeat(sequence)).await.unwrap();
-            let (frames, _) = tokio::time::timeout(wait, link.recv(&mut buf))
-                .await
-                .expect("the frame arrives")
-                .unwrap();
-            assert_eq!(frames.len(), 1);
-            assert_eq!(frames[0].sequence(), sequence);
-            assert!(link.can_send());
-            // The autopilot reboots: the reader sees the connection end, and the link is down
-            // until it is open again.
-            drop(peer);
-            let ended = tokio::time::timeout(wait, link.recv(&mut buf))
-                .await
-                .unwrap();
-            assert!(ended.is_err(), "{:?}", ended.map(|(f, _)| f.len()));
+            one_heartbeat_then_gone(&link, peer, sequence).await;
         }
     }
 
@@ -754,24 +764,19 @@ mod tests {
     /// listens again and takes the next one (a ground station that reconnects).
     #[tokio::test]
     async fn a_tcp_listening_link_takes_a_client_and_the_next_after_it_left() {
-        use tokio::io::AsyncWriteExt;
         let wait = Duration::from_secs(10);
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
+        let port = unused_port();
         let link = tokio::time::timeout(wait, connect(&format!("tcpin:127.0.0.1:{port}")))
             .await
             .expect("the link is made without waiting for a client")
             .unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;
         assert!(!link.can_send(), "no client yet");
-        let mut buf = vec![0u8; 1024];
         for sequence in [3, 4] {
-            // The listener may not be bound yet (it is, again, after a retry).
+            // The link binds its port again after the last client left: it may not be
+            // listening the moment the client tries.
             let started = tokio::time::Instant::now();
-            let mut client = loop {
+            let client = loop {
                 match tokio::net::TcpStream::connect(("127.0.0.1", port)).await {
                     Ok(client) => break client,
                     Err(e) if started.elapsed() < wait => {
@@ -781,19 +786,7 @@ mod tests {
                     Err(e) => panic!("the link listens again within {wait:?}: {e}"),
                 }
             };
-            client.write_all(&heartbeat(sequence)).await.unwrap();
-            let (frames, _) = tokio::time::timeout(wait, link.recv(&mut buf))
-                .await
-                .expect("the frame arrives")
-                .unwrap();
-            assert_eq!(frames.len(), 1);
-            assert_eq!(frames[0].sequence(), sequence);
-            assert!(link.can_send());
-            drop(client);
-            let ended = tokio::time::timeout(wait, link.recv(&mut buf))
-                .await
-                .unwrap();
-            assert!(ended.is_err(), "{:?}", ended.map(|(f, _)| f.len()));
+            one_heartbeat_then_gone(&link, client, sequence).await;
         }
     }
 }
