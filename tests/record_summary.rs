@@ -4,7 +4,7 @@
 mod tempdir;
 
 use lj9da_bridge::bus::{Goal, Health};
-use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, Telemetry};
+use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Motion, Ms10, Mv10, ReplyFlags, Telemetry};
 use lj9da_bridge::record::cli::{RecordCommand, run};
 use lj9da_bridge::record::csv::{CSV_HEADER, write_csv};
 use lj9da_bridge::record::format::{RecordHeader, RecordServo, encode_header, encode_record};
@@ -541,6 +541,72 @@ fn position_records_count_in_the_error_and_the_exports_but_not_as_samples() {
     assert!(
         row.starts_with("2.000000,") && row.contains(",7.00,"),
         "{row}"
+    );
+}
+
+/// A flag that comes and goes between two full reads is seen only by the reads of position (and
+/// current) in between: it counts, at the time of the read that first carried it.
+#[test]
+fn a_flag_seen_only_between_two_full_reads_counts_as_an_alarm() {
+    let mut bytes = encode_header(&RecordHeader::new(
+        1_763_769_600_000_000_000,
+        vec![RecordServo::new("left", "wing", 1, 3)],
+    ));
+    let telemetry = |flags| RecordBody::Telemetry {
+        servo: 0,
+        telemetry: Telemetry {
+            present_position: MmCenti(0),
+            present_time: Ms10(0),
+            present_load: Ma10(30),
+            present_temperature: Celsius(35),
+            present_voltage: Mv10(1480),
+        },
+        flags: ReplyFlags(flags),
+    };
+    let motion = |flags| RecordBody::Motion {
+        servo: 0,
+        motion: Motion {
+            present_position: MmCenti(0),
+            present_time: Ms10(0),
+            present_load: Ma10(30),
+        },
+        flags: ReplyFlags(flags),
+    };
+    let position = |flags| RecordBody::Position {
+        servo: 0,
+        position: MmCenti(0),
+        flags: ReplyFlags(flags),
+    };
+    let records = [
+        (0.00, telemetry(0)),
+        (0.02, motion(ReplyFlags::TEMPERATURE_ALARM)),
+        (0.04, motion(0)),
+        (0.05, telemetry(0)),
+        (0.07, position(ReplyFlags::FLASH_WRITE_ERROR)),
+        // Still on: not a second alarm.
+        (0.09, position(ReplyFlags::FLASH_WRITE_ERROR)),
+        (0.10, telemetry(0)),
+        (0.20, RecordBody::End { continued: false }),
+    ];
+    for (t, body) in records {
+        encode_record(&Record { t_us: us(t), body }, &mut bytes);
+    }
+    let rec = Recording::from_bytes(&bytes).unwrap();
+    assert!(rec.notes.is_empty(), "{:?}", rec.notes);
+    let s = &summary(&rec).servos[0];
+    assert_eq!(
+        (s.temperature_alarms, s.temperature_errors, s.flash_errors),
+        (1, 0, 1)
+    );
+    let at = summary::flag_alarms(&rec, 0);
+    assert_eq!(at.len(), 2, "{at:?}");
+    assert!(
+        close(at[0].0, 0.02) && at[0].1 == "temperature alarm",
+        "{at:?}"
+    );
+    assert!(
+        close(at[1].0, 0.07) && at[1].1 == "flash write error",
+        "{at:?}"
     );
 }
 

@@ -8,12 +8,14 @@
 //! - **time stalled** / **time offline**: the total time between a health record that says
 //!   stalled (offline) and the next that does not, or the end of the recording;
 //! - **max error**: the largest |goal − present position| over the samples and the position
-//!   and motion records (reads of the position alone, or with the current), each paired with the goal in force at its time (the latest position goal; `hold` keeps it;
-//!   `off` and `brake` end it, and samples without a goal in force are not paired). It
-//!   includes the travel right after each new goal; **settled error** is the same over the
-//!   samples taken at least [`SETTLE_S`] after the goal last changed;
+//!   and motion records (reads of the position alone, or with the current), each paired with
+//!   the goal in force at its time (the latest position goal; `hold` keeps it; `off` and
+//!   `brake` end it, and samples without a goal in force are not paired). It includes the
+//!   travel right after each new goal; **settled error** is the same over the samples taken
+//!   at least [`SETTLE_S`] after the goal last changed;
 //! - **alarms**: times a status flag of the servo's replies went on — temperature alarm,
-//!   temperature error, flash write error — each counted separately.
+//!   temperature error, flash write error — each counted separately, over every reply the
+//!   record keeps (samples, position and motion records).
 
 use super::format::{Record, RecordBody, RecordServo};
 use super::reader::Recording;
@@ -168,12 +170,16 @@ pub fn state_spans(
 }
 
 /// The times, in seconds, at which a flag of servo `servo`'s replies went on, with the flag's
-/// name.
+/// name. Every reply carries the flags, the reads of position (and current) between two full
+/// reads too: a flag that came and went between two full reads counts.
 pub fn flag_alarms(rec: &Recording, servo: usize) -> Vec<(f64, &'static str)> {
     let mut alarms = Vec::new();
     let mut previous = ReplyFlags(0);
     for r in servo_records(rec, servo) {
-        if let RecordBody::Telemetry { flags, .. } = r.body {
+        if let RecordBody::Telemetry { flags, .. }
+        | RecordBody::Position { flags, .. }
+        | RecordBody::Motion { flags, .. } = r.body
+        {
             let rose = flags.0 & !previous.0;
             for (bit, name) in [
                 (ReplyFlags::TEMPERATURE_ALARM, "temperature alarm"),
