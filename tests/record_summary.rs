@@ -1,10 +1,12 @@
 //! Looking at a record: the summary's figures against a synthetic run whose figures are
 //! known, the CSV export, the SVG pictures, and the `record` subcommand.
 
+mod flag_records;
 mod tempdir;
 
+use flag_records::{ALARM_AT_US, FLASH_ERROR_AT_US, flag_records};
 use lj9da_bridge::bus::{Goal, Health};
-use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Motion, Ms10, Mv10, ReplyFlags, Telemetry};
+use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, Telemetry};
 use lj9da_bridge::record::cli::{RecordCommand, run};
 use lj9da_bridge::record::csv::{CSV_HEADER, write_csv};
 use lj9da_bridge::record::format::{RecordHeader, RecordServo, encode_header, encode_record};
@@ -194,6 +196,10 @@ fn synthetic() -> Recording {
         encode_record(&r, &mut bytes);
     }
     Recording::from_bytes(&bytes).unwrap()
+}
+
+fn us_to_s(t_us: u64) -> f64 {
+    t_us as f64 / 1e6
 }
 
 fn close(a: f64, b: f64) -> bool {
@@ -552,44 +558,8 @@ fn a_flag_seen_only_between_two_full_reads_counts_as_an_alarm() {
         1_763_769_600_000_000_000,
         vec![RecordServo::new("left", "wing", 1, 3)],
     ));
-    let telemetry = |flags| RecordBody::Telemetry {
-        servo: 0,
-        telemetry: Telemetry {
-            present_position: MmCenti(0),
-            present_time: Ms10(0),
-            present_load: Ma10(30),
-            present_temperature: Celsius(35),
-            present_voltage: Mv10(1480),
-        },
-        flags: ReplyFlags(flags),
-    };
-    let motion = |flags| RecordBody::Motion {
-        servo: 0,
-        motion: Motion {
-            present_position: MmCenti(0),
-            present_time: Ms10(0),
-            present_load: Ma10(30),
-        },
-        flags: ReplyFlags(flags),
-    };
-    let position = |flags| RecordBody::Position {
-        servo: 0,
-        position: MmCenti(0),
-        flags: ReplyFlags(flags),
-    };
-    let records = [
-        (0.00, telemetry(0)),
-        (0.02, motion(ReplyFlags::TEMPERATURE_ALARM)),
-        (0.04, motion(0)),
-        (0.05, telemetry(0)),
-        (0.07, position(ReplyFlags::FLASH_WRITE_ERROR)),
-        // Still on: not a second alarm.
-        (0.09, position(ReplyFlags::FLASH_WRITE_ERROR)),
-        (0.10, telemetry(0)),
-        (0.20, RecordBody::End { continued: false }),
-    ];
-    for (t, body) in records {
-        encode_record(&Record { t_us: us(t), body }, &mut bytes);
+    for (t_us, body) in flag_records() {
+        encode_record(&Record { t_us, body }, &mut bytes);
     }
     let rec = Recording::from_bytes(&bytes).unwrap();
     assert!(rec.notes.is_empty(), "{:?}", rec.notes);
@@ -601,11 +571,11 @@ fn a_flag_seen_only_between_two_full_reads_counts_as_an_alarm() {
     let at = summary::flag_alarms(&rec, 0);
     assert_eq!(at.len(), 2, "{at:?}");
     assert!(
-        close(at[0].0, 0.02) && at[0].1 == "temperature alarm",
+        close(at[0].0, us_to_s(ALARM_AT_US)) && at[0].1 == "temperature alarm",
         "{at:?}"
     );
     assert!(
-        close(at[1].0, 0.07) && at[1].1 == "flash write error",
+        close(at[1].0, us_to_s(FLASH_ERROR_AT_US)) && at[1].1 == "flash write error",
         "{at:?}"
     );
 }

@@ -3,8 +3,10 @@
 //! telemetry), one of which wears from flight six on; and one real run through a pseudo-terminal,
 //! the bus master and the recorder, with the simulator's wear knob turned on one servo.
 
+mod flag_records;
 mod tempdir;
 
+use flag_records::flag_records;
 use lj9da_bridge::bus::{BusConfig, Goal, Health, ServoSetup, ShutdownForce, spawn_bus_observed};
 use lj9da_bridge::protocol::{
     BaudRate, Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, ServoId, Telemetry,
@@ -388,6 +390,26 @@ fn the_parts_of_one_run_make_one_flight_and_older_formats_read() {
     assert_eq!(f.peak_c, Some(32.0));
     assert_eq!(f.bad_replies, None);
     assert_eq!(flap.verdict, Verdict::Baseline);
+}
+
+/// A flag that comes and goes between two full reads is carried only by the reads of position
+/// (and current) in between: the flight counts it.
+#[test]
+fn a_flag_seen_only_between_two_full_reads_counts_as_an_alarm() {
+    let dir = TempDir::new("trend-flags");
+    let mut bytes = encode_header(&RecordHeader::new(
+        FIRST_FLIGHT_NS,
+        vec![RecordServo::new("flap", "wing", 5, 7)],
+    ));
+    for (t_us, body) in flag_records() {
+        encode_record(&Record { t_us, body }, &mut bytes);
+    }
+    std::fs::write(dir.path().join("run.lj9rec"), bytes).unwrap();
+    let (t, notes) = trend(&files_of(dir.path()), &[]);
+    assert!(notes.errors.is_empty(), "{notes:?}");
+    let flights = &t.servos[0].flights;
+    assert_eq!(flights.len(), 1);
+    assert_eq!(flights[0].alarms, 2, "{:?}", flights[0]);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

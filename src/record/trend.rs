@@ -33,7 +33,7 @@
 //! - **bad replies**: the share of the servo's requests that got a garbled reply or none, from
 //!   the replies records (format 1.2; older records have none);
 //! - **alarms**: times a status flag went on (temperature alarm, temperature error, flash write
-//!   error).
+//!   error), in any reply the record keeps (samples, position and motion records).
 //!
 //! A judged flight is marked **inspect** by each of these (the thresholds are constants here):
 //! friction or holding current above the baseline by more than [`RISE_LIMIT`] (+25 %), the
@@ -451,6 +451,11 @@ impl Acc {
             }
         }
         self.last_temp = Some((t, temperature_c));
+        self.flags(flags);
+    }
+
+    /// The status flags of a reply (every read carries them): a flag that went on is an alarm.
+    fn flags(&mut self, flags: ReplyFlags) {
         let rose = flags.0 & !self.flags.0;
         for bit in [
             ReplyFlags::TEMPERATURE_ALARM,
@@ -458,7 +463,7 @@ impl Acc {
             ReplyFlags::FLASH_WRITE_ERROR,
         ] {
             if rose & bit != 0 {
-                f.alarms += 1;
+                self.flight.alarms += 1;
             }
         }
         self.flags = flags;
@@ -512,10 +517,18 @@ impl Acc {
                     *flags,
                 );
             }
-            RecordBody::Position { position, .. } => self.position(t, position.mm()),
-            RecordBody::Motion { motion: m, .. } => {
+            RecordBody::Position {
+                position, flags, ..
+            } => {
+                self.position(t, position.mm());
+                self.flags(*flags);
+            }
+            RecordBody::Motion {
+                motion: m, flags, ..
+            } => {
                 self.position(t, m.present_position.mm());
                 self.current(m.present_load.amps());
+                self.flags(*flags);
             }
             RecordBody::Health {
                 health, stalled, ..
