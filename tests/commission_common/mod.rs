@@ -70,20 +70,27 @@ pub async fn packets(events: &Receiver<BusEvent>, link: &mut Link) -> Vec<HostPa
 }
 
 /// [`packets`] after a command run in another process: that process has exited and closed the
-/// port, so the marker is sent through a link of our own.
+/// port, so the marker is sent through a descriptor of our own, at 115 200 bit/s.
+///
+/// Not through a [`Link`]: a link takes the port's exclusive lock, and a child process that
+/// another test forks while the link is open shares the link's descriptor, lock included,
+/// until the child's `exec` closes it. On a busy machine that can be long enough for the next
+/// command to find the port locked.
 pub fn packets_after_exit(events: &Receiver<BusEvent>, port: &Path) -> Vec<HostPacket> {
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .expect("a runtime for the end marker");
-    runtime.block_on(async {
-        let mut link = Link::open(port, BaudRate::B115200)
-            .await
-            .expect("the port is free again once the command has exited");
-        link.send(&end_marker())
-            .await
-            .expect("the end marker is sent");
-    });
+    use nix::sys::termios::{BaudRate as Speed, SetArg, cfsetspeed, tcgetattr, tcsetattr};
+    use std::io::Write;
+    use std::os::unix::fs::OpenOptionsExt;
+    let mut tty = std::fs::OpenOptions::new()
+        .write(true)
+        .custom_flags(libc::O_NOCTTY)
+        .open(port)
+        .expect("the port opens once the command has exited");
+    let mut termios = tcgetattr(&tty).expect("the port's settings");
+    cfsetspeed(&mut termios, Speed::B115200).expect("115 200 bit/s");
+    tcsetattr(&tty, SetArg::TCSANOW, &termios).expect("the port takes 115 200 bit/s");
+    tty.write_all(&end_marker().to_bytes())
+        .expect("the end marker is sent");
+    drop(tty);
     packets_until_marker(events)
 }
 
