@@ -13,11 +13,12 @@
 
 use std::fs::File;
 use std::io::{self, Read, Write};
-use std::os::fd::{AsFd, AsRawFd, BorrowedFd, OwnedFd};
+use std::os::fd::{AsFd, AsRawFd, BorrowedFd, FromRawFd, IntoRawFd, OwnedFd};
 use std::path::{Path, PathBuf};
 
-use nix::fcntl::{FcntlArg, FdFlag, OFlag, fcntl};
-use nix::pty::{OpenptyResult, openpty};
+use nix::fcntl::{OFlag, open};
+use nix::pty::{grantpt, posix_openpt, ptsname_r, unlockpt};
+use nix::sys::stat::Mode;
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 
 /// One pseudo-terminal pair.
@@ -29,21 +30,20 @@ pub struct Pty {
 }
 
 impl Pty {
-    /// A new raw pty whose slave is set to `baud`.
+    /// A new raw pty whose slave is set to `baud`. Both descriptors are opened close-on-exec
+    /// (not marked so afterwards): a child that another thread starts meanwhile gets neither.
     pub fn open(baud: u32) -> io::Result<Pty> {
-        let OpenptyResult { master, slave } = openpty(None, None).map_err(io::Error::from)?;
-        for fd in [&master, &slave] {
-            fcntl(fd.as_raw_fd(), FcntlArg::F_SETFD(FdFlag::FD_CLOEXEC))
-                .map_err(io::Error::from)?;
-        }
-        let flags = OFlag::from_bits_truncate(
-            fcntl(master.as_raw_fd(), FcntlArg::F_GETFL).map_err(io::Error::from)?,
-        );
-        fcntl(
-            master.as_raw_fd(),
-            FcntlArg::F_SETFL(flags | OFlag::O_NONBLOCK),
-        )
-        .map_err(io::Error::from)?;
+        let cloexec = OFlag::O_RDWR | OFlag::O_NOCTTY | OFlag::O_CLOEXEC;
+        let ptmx = posix_openpt(cloexec | OFlag::O_NONBLOCK).map_err(io::Error::from)?;
+        grantpt(&ptmx).map_err(io::Error::from)?;
+        unlockpt(&ptmx).map_err(io::Error::from)?;
+        let slave_path = ptsname_r(&ptmx).map_err(io::Error::from)?;
+        // SAFETY: `into_raw_fd` hands over the descriptor `ptmx` owned.
+        let master = unsafe { OwnedFd::from_raw_fd(ptmx.into_raw_fd()) };
+        let slave: OwnedFd = open(slave_path.as_str(), cloexec, Mode::empty())
+            .map_err(io::Error::from)
+            // SAFETY: `open` returned a new descriptor that nothing else owns.
+            .map(|fd| unsafe { OwnedFd::from_raw_fd(fd) })?;
         let mut termios = tcgetattr(&slave).map_err(io::Error::from)?;
         cfmakeraw(&mut termios);
         tcsetattr(&slave, SetArg::TCSANOW, &termios).map_err(io::Error::from)?;
@@ -150,6 +150,20 @@ mod tests {
     use super::*;
     use std::fs::OpenOptions;
     use std::os::unix::fs::OpenOptionsExt;
+
+    /// Neither descriptor outlives an `exec`, and reading the master never blocks.
+    #[test]
+    fn both_descriptors_are_close_on_exec_and_the_master_never_blocks() {
+        use nix::fcntl::{FcntlArg, FdFlag, fcntl};
+        let pty = Pty::open(115_200).expect("pty");
+        for fd in [pty.master.as_raw_fd(), pty.slave.as_raw_fd()] {
+            let flags = FdFlag::from_bits_truncate(fcntl(fd, FcntlArg::F_GETFD).unwrap());
+            assert!(flags.contains(FdFlag::FD_CLOEXEC), "{fd}: {flags:?}");
+        }
+        let status =
+            OFlag::from_bits_truncate(fcntl(pty.master.as_raw_fd(), FcntlArg::F_GETFL).unwrap());
+        assert!(status.contains(OFlag::O_NONBLOCK), "{status:?}");
+    }
 
     #[test]
     fn the_slave_starts_at_the_bus_rate_and_follows_the_host() {
