@@ -38,6 +38,10 @@ impl ReplyFlags {
             self.0 & (Self::TEMPERATURE_ERROR | Self::TEMPERATURE_ALARM | Self::FLASH_WRITE_ERROR),
         )
     }
+    /// The meaningful flags that are on here and were off in `before`: each is an alarm.
+    pub fn risen_since(self, before: ReplyFlags) -> ReplyFlags {
+        ReplyFlags(self.meaningful().0 & !before.0)
+    }
 }
 
 impl fmt::Display for ReplyFlags {

@@ -180,7 +180,7 @@ pub fn flag_alarms(rec: &Recording, servo: usize) -> Vec<(f64, &'static str)> {
         | RecordBody::Position { flags, .. }
         | RecordBody::Motion { flags, .. } = r.body
         {
-            let rose = flags.0 & !previous.0;
+            let rose = flags.risen_since(previous).0;
             for (bit, name) in [
                 (ReplyFlags::TEMPERATURE_ALARM, "temperature alarm"),
                 (ReplyFlags::TEMPERATURE_ERROR, "temperature error"),

@@ -456,16 +456,7 @@ impl Acc {
 
     /// The status flags of a reply (every read carries them): a flag that went on is an alarm.
     fn flags(&mut self, flags: ReplyFlags) {
-        let rose = flags.0 & !self.flags.0;
-        for bit in [
-            ReplyFlags::TEMPERATURE_ALARM,
-            ReplyFlags::TEMPERATURE_ERROR,
-            ReplyFlags::FLASH_WRITE_ERROR,
-        ] {
-            if rose & bit != 0 {
-                self.flight.alarms += 1;
-            }
-        }
+        self.flight.alarms += flags.risen_since(self.flags).0.count_ones();
         self.flags = flags;
     }
 

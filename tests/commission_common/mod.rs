@@ -77,17 +77,15 @@ pub async fn packets(events: &Receiver<BusEvent>, link: &mut Link) -> Vec<HostPa
 /// until the child's `exec` closes it. On a busy machine that can be long enough for the next
 /// command to find the port locked.
 pub fn packets_after_exit(events: &Receiver<BusEvent>, port: &Path) -> Vec<HostPacket> {
-    use nix::sys::termios::{BaudRate as Speed, SetArg, cfsetspeed, tcgetattr, tcsetattr};
     use std::io::Write;
+    use std::os::fd::AsFd;
     use std::os::unix::fs::OpenOptionsExt;
     let mut tty = std::fs::OpenOptions::new()
         .write(true)
         .custom_flags(libc::O_NOCTTY)
         .open(port)
         .expect("the port opens once the command has exited");
-    let mut termios = tcgetattr(&tty).expect("the port's settings");
-    cfsetspeed(&mut termios, Speed::B115200).expect("115 200 bit/s");
-    tcsetattr(&tty, SetArg::TCSANOW, &termios).expect("the port takes 115 200 bit/s");
+    lj9da_sim::runtime::pty::set_speed(tty.as_fd(), 115_200).expect("the port takes 115 200 bit/s");
     tty.write_all(&end_marker().to_bytes())
         .expect("the end marker is sent");
     drop(tty);
