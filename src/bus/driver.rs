@@ -27,6 +27,9 @@
 //! default); goals keep being accepted meanwhile. A port that fails while idle is noticed within
 //! 100 ms (the thread reads at least that often).
 //!
+//! The thread goes round its loop at least every 100 ms, port open or not, and counts its turns
+//! ([`BusHandle::turns`]): the service's watchdog is fed only while every bus thread turns.
+//!
 //! This file must never decide what to send or when: it only carries bytes and time between the
 //! port and the bus master. It never panics: a port error is a lost port, a poisoned lock is
 //! taken over, a thread that cannot start is logged.
@@ -49,7 +52,8 @@ use std::fs::File;
 use std::io::{Read, Write};
 use std::os::fd::{AsFd, AsRawFd, FromRawFd, IntoRawFd};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, watch};
 use tokio_serial::{DataBits, FlowControl, Parity, StopBits};
@@ -440,6 +444,9 @@ struct Shared {
     core: Mutex<Core>,
     /// The bus thread's wake-ups (`None`: they could not be made, and the thread never ran).
     wakers: Option<Wakers>,
+    /// Turns of the bus thread's loops since its first attempt to open the port (0 before):
+    /// the evidence that the thread runs (see [`BusHandle::turns`]).
+    turns: AtomicU64,
 }
 
 /// What ends the bus thread's wait besides the port, without the core.
@@ -630,6 +637,14 @@ impl BusHandle {
         shared.after_write(core);
     }
 
+    /// How many turns the bus thread has made through its loops since it first tried to open
+    /// the port: 0 until that first attempt is over (the port opened or was found missing).
+    /// A running thread turns at least every 100 ms, port open or not; a count that stands
+    /// still means a thread that is stuck (or has stopped after a shutdown).
+    pub fn turns(&self) -> u64 {
+        self.owners.shared.turns.load(Ordering::Relaxed)
+    }
+
     /// The latest status the bus thread published.
     pub fn status(&self) -> BusStatus {
         self.status.borrow().clone()
@@ -697,6 +712,7 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
             late_wakeups: LateWakeups::default(),
         }),
         wakers: wakers.ok(),
+        turns: AtomicU64::new(0),
     });
     let driver = Driver {
         name: name.clone(),
@@ -708,6 +724,7 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
         events: event_tx.clone(),
         finished: finished_tx,
         published_at: Instant::now(),
+        started: Instant::now(),
     };
     if shared.wakers.is_some() {
         let spawned = std::thread::Builder::new()
@@ -786,9 +803,53 @@ struct Driver {
     events: broadcast::Sender<BusEvent>,
     finished: watch::Sender<bool>,
     published_at: Instant,
+    /// When the thread started (for [`HANG_SWITCH`]).
+    started: Instant,
+}
+
+/// The environment variable of the test-only fault switch: `<bus name>:<seconds>` makes that
+/// bus's thread hang (without the core) once it has run that long, so that a test can see the
+/// service's watchdog notice a stuck bus thread. Nothing else reads it; a bridge it is set for
+/// says so in its log at the start of that bus.
+pub const HANG_SWITCH: &str = "LJ9DA_TEST_HANG_BUS";
+
+/// The bus named by [`HANG_SWITCH`] and when its thread hangs (`None`: unset or unreadable).
+fn hang_switch() -> Option<&'static (String, Duration)> {
+    static SWITCH: OnceLock<Option<(String, Duration)>> = OnceLock::new();
+    SWITCH
+        .get_or_init(|| {
+            let value = std::env::var(HANG_SWITCH).ok()?;
+            let parsed = value.rsplit_once(':').and_then(|(bus, secs)| {
+                let secs = secs
+                    .trim()
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|s| s.is_finite() && *s >= 0.0)?;
+                Some((bus.to_string(), Duration::from_secs_f64(secs)))
+            });
+            if parsed.is_none() {
+                tracing::warn!("{HANG_SWITCH}={value:?} ignored: expected <bus name>:<seconds>");
+            }
+            parsed
+        })
+        .as_ref()
 }
 
 impl Driver {
+    /// One turn of the thread's loops: counted for [`BusHandle::turns`]; the place where the
+    /// thread hangs when [`HANG_SWITCH`] asks it to.
+    fn turn(&self) {
+        if let Some((_, after)) = hang_switch().filter(|(bus, _)| *bus == self.name)
+            && self.started.elapsed() >= *after
+        {
+            tracing::error!(bus = %self.name, "bus thread hangs now, as {HANG_SWITCH} asks");
+            loop {
+                std::thread::park();
+            }
+        }
+        self.shared.turns.fetch_add(1, Ordering::Relaxed);
+    }
+
     fn run(mut self) {
         let shared = Arc::clone(&self.shared);
         let Some(wakers) = shared.wakers.as_ref() else {
@@ -813,9 +874,14 @@ impl Driver {
             let cfg = core.master.config();
             (cfg.baud, cfg.port_reopen_backoff)
         };
+        if let Some((_, after)) = hang_switch().filter(|(bus, _)| *bus == self.name) {
+            tracing::warn!(bus = %self.name, "test fault switch {HANG_SWITCH}: this bus thread will hang after {after:?}");
+        }
         let mut backoff = Duration::ZERO;
         loop {
-            match open_port(&self.path, baud, self.rs485.as_mut()) {
+            let opened = open_port(&self.path, baud, self.rs485.as_mut());
+            self.turn();
+            match opened {
                 Ok((port, waiter)) => {
                     backoff = Duration::ZERO;
                     tracing::info!(bus = %self.name, port = %self.path.display(), "serial port open at {baud}");
@@ -860,13 +926,16 @@ impl Driver {
         self.shared.core().master.shutdown_requested()
     }
 
-    /// Wait `wait` with the port closed, still taking goals. True when a shutdown arrived.
+    /// Wait `wait` with the port closed, still taking goals, and turning at least every
+    /// [`STATUS_REFRESH`]. True when a shutdown arrived.
     fn wait_offline(&mut self, wakers: &Wakers, wait: Duration) -> bool {
         let until = Instant::now() + wait;
         loop {
+            self.turn();
             {
                 let core = self.shared.core();
-                let mut core = self.shared.sleep(wakers, core, until);
+                let step = until.min(Instant::now() + STATUS_REFRESH);
+                let mut core = self.shared.sleep(wakers, core, step);
                 core.master.handle_timeout(Instant::now());
                 if core.master.shutdown_requested() {
                     return true;
@@ -937,6 +1006,7 @@ impl Driver {
     fn serve(&mut self, wakers: &Wakers, mut waiter: ReplyWaiter) -> Exit {
         let mut buf = [0u8; 512];
         loop {
+            self.turn();
             if self.shared.core().master.awaited_reply_hides_a_reading() {
                 self.publish(Publish::BeforeReplacing);
             }
