@@ -165,6 +165,7 @@ fn main() -> ExitCode {
                     record_dir: Some(cfg.record.dir_for(Some(&config))),
                     check_latency: true,
                     mapping: runtime::mapping_file(Some(&config)),
+                    service: true,
                     ..Default::default()
                 };
                 match runtime::run(cfg, opts, stop_rx).await {

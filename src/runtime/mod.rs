@@ -12,6 +12,7 @@
 //! data and waits.
 
 mod links;
+pub mod service;
 
 use crate::bus::{
     BusConfig, BusEvent, BusHandle, BusStatus, Health, ServoSetup, ShutdownForce, spawn_bus,
@@ -30,6 +31,7 @@ use crate::record::{RecordHandle, RecordLimits, RecordServo, Recorder, StatusFee
 use ::mavlink::MavHeader;
 use ::mavlink::dialects::common::MavMessage;
 use links::{Link, LinkWriter, SharedSigning};
+use service::{Verdict, Watchdog};
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -307,6 +309,9 @@ pub struct RunOptions {
     /// The mapping file that parameter changes from a ground station are saved into;
     /// `None`: parameters can be read but not changed.
     pub mapping: Option<MappingFile>,
+    /// Run as a systemd service: say when ready and stopping, feed the watchdog (see
+    /// [`service`]; nothing happens where systemd did not ask for it).
+    pub service: bool,
 }
 
 /// The mapping file that parameter changes go into: the file at `path`, or the built-in
@@ -403,8 +408,15 @@ pub async fn run(
     opts: RunOptions,
     stop: watch::Receiver<bool>,
 ) -> Result<(), RunError> {
+    let service = opts.service;
     let mut bridge = Bridge::start(cfg, opts).await?;
+    if service {
+        bridge.ready().await;
+    }
     bridge.serve(stop).await;
+    if service {
+        service::notify(&[sd_notify::NotifyState::Stopping]);
+    }
     bridge.stop().await;
     Ok(())
 }
@@ -429,6 +441,8 @@ struct Bridge {
     view: Option<watch::Sender<BridgeView>>,
     view_at: Instant,
     texts: std::collections::VecDeque<String>,
+    /// systemd's watchdog, once the bridge told it that it is ready.
+    watchdog: Option<Watchdog>,
 }
 
 /// One input of the loop, in the order the loop prefers them.
@@ -438,8 +452,8 @@ enum Input {
     Edited(ParamSet, Result<Config, String>),
     BusEvent(usize, BusEvent),
     Timeout,
-    /// Nothing happened for [`VIEW_STALE`]: only the view is due.
-    ViewDue,
+    /// Only the view (nothing happened for [`VIEW_STALE`]) or the watchdog's ping is due.
+    Housekeeping,
 }
 
 impl Bridge {
@@ -451,6 +465,7 @@ impl Bridge {
             record_dir,
             check_latency,
             mapping,
+            service: _,
         } = opts;
         if check_latency {
             // A run on the aircraft (the `run` command): its adapters and its memory.
@@ -515,7 +530,71 @@ impl Bridge {
             view,
             view_at: Instant::now(),
             texts: std::collections::VecDeque::with_capacity(VIEW_TEXTS),
+            watchdog: None,
         })
+    }
+
+    /// Tell systemd that the bridge is ready once every bus thread has made its first attempt
+    /// at its port (the links are bound already), and start feeding its watchdog.
+    async fn ready(&mut self) {
+        let waited_from = Instant::now();
+        let mut tick = tokio::time::interval(std::time::Duration::from_millis(5));
+        while let Some(bus) = self.buses.handles.iter().find(|b| b.turns() == 0) {
+            if waited_from.elapsed() >= service::READY_WAIT {
+                tracing::warn!(bus = %bus.name(), "bus thread has not tried its port after {:?}: telling systemd the bridge is ready all the same", service::READY_WAIT);
+                break;
+            }
+            tick.tick().await;
+        }
+        let open = self
+            .buses
+            .handles
+            .iter()
+            .filter(|b| b.status().port_open && b.turns() > 0)
+            .count();
+        let status = format!(
+            "{} servos, {open} of {} buses open, autopilot link {}",
+            self.cfg.servos.len(),
+            self.buses.handles.len(),
+            self.cfg.mavlink.connection
+        );
+        tracing::info!("ready: {status}");
+        service::notify(&[
+            sd_notify::NotifyState::Ready,
+            sd_notify::NotifyState::Status(&status),
+        ]);
+        self.watchdog = Watchdog::from_env(self.bus_turns(), Instant::now());
+        self.feed_watchdog();
+    }
+
+    /// Every bus thread's turns so far, in bus order.
+    fn bus_turns(&self) -> Vec<u64> {
+        self.buses.handles.iter().map(BusHandle::turns).collect()
+    }
+
+    /// Ping systemd's watchdog if it is due and every bus thread has turned since the last
+    /// ping; name a bus thread that has not, once per spell.
+    fn feed_watchdog(&mut self) {
+        let turns = self.bus_turns();
+        let Some(watchdog) = self.watchdog.as_mut() else {
+            return;
+        };
+        match watchdog.check(Instant::now(), &turns) {
+            Verdict::NotDue => {}
+            Verdict::Alive => {
+                watchdog.untold(&[]);
+                service::notify(&[sd_notify::NotifyState::Watchdog]);
+            }
+            Verdict::Stuck(stuck) => {
+                for bus in watchdog.untold(&stuck) {
+                    tracing::error!(
+                        bus = %self.buses.handles[bus].name(),
+                        "bus thread stuck: no turn in {:?}; systemd's watchdog is no longer fed",
+                        watchdog.period()
+                    );
+                }
+            }
+        }
     }
 
     /// The loop: one input (and the messages already waiting) into the core, then everything
@@ -546,7 +625,7 @@ impl Bridge {
                     let (reports, _) = self.buses.reports(&self.cfg);
                     self.core.handle_timeout(Instant::now(), &reports);
                 }
-                Input::ViewDue => {}
+                Input::Housekeeping => {}
             }
             let mut goals = vec![Vec::new(); self.buses.handles.len()];
             self.collect_goals(&mut goals);
@@ -572,16 +651,19 @@ impl Bridge {
                 tracing::warn!("{note}");
             }
             self.refresh_view();
+            self.feed_watchdog();
         }
     }
 
     /// Wait for the next input: a stop first, then messages, finished parameter changes, bus
     /// events, and the core's deadline (none before an autopilot is found: the loop sleeps,
-    /// waking only to refresh a view, if it has one, every [`VIEW_STALE`]).
+    /// waking only to refresh a view, if it has one, every [`VIEW_STALE`], and to ping systemd's
+    /// watchdog, if it has one).
     async fn next_input(&mut self, stop: &mut watch::Receiver<bool>) -> Input {
         let core_deadline = self.core.poll_timeout();
         let view_deadline = self.view.as_ref().map(|_| self.view_at + VIEW_STALE);
-        let deadline = [core_deadline, view_deadline]
+        let watchdog_deadline = self.watchdog.as_ref().map(Watchdog::due_at);
+        let deadline = [core_deadline, view_deadline, watchdog_deadline]
             .into_iter()
             .flatten()
             .min()
@@ -598,7 +680,7 @@ impl Bridge {
                 if core_deadline.is_some_and(|at| at <= Instant::now()) {
                     Input::Timeout
                 } else {
-                    Input::ViewDue
+                    Input::Housekeeping
                 }
             }
         }

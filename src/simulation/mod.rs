@@ -166,6 +166,7 @@ pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
             (Some(_), Some(path)) => runtime::mapping_file(Some(path)),
             (Some(_), None) => None,
         },
+        service: false,
     };
     let bridge = tokio::spawn(runtime::run(cfg, run_opts, stop_rx));
 

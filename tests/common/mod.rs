@@ -250,6 +250,7 @@ impl Chain {
                 Some(path) => MappingFile::open(path).expect("the mapping file opens"),
                 None => MappingFile::in_memory(mapping, "test mapping").expect("valid"),
             }),
+            service: false,
         };
         let bridge = tokio::spawn(runtime::run(cfg.clone(), opts, stop_rx.clone()));
         let handle = AutopilotHandle::default();

@@ -1,0 +1,322 @@
+//! The bridge as a systemd service, through the binary: `lj9da-bridge run` under a
+//! `NOTIFY_SOCKET` (a real Unix datagram socket of the test's, as systemd gives one) and a
+//! `WATCHDOG_USEC`. It says READY=1 once its buses have tried their ports, then pings the
+//! watchdog while every bus thread turns, a bus whose port is missing included; a bus thread
+//! that hangs (the test-only fault switch) stops the pings, and the log names the bus.
+
+mod bus_support;
+mod tempdir;
+
+use bus_support::*;
+use std::io::{BufRead, BufReader};
+use std::os::unix::net::UnixDatagram;
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+use tempdir::TempDir;
+
+/// The watchdog timeout the tests ask for: pings every 500 ms.
+const WATCHDOG: Duration = Duration::from_secs(1);
+
+/// What came from the bridge, in the order the test took it, each with when.
+#[derive(Debug)]
+enum Said {
+    /// A datagram on the notify socket.
+    Notify(String),
+    /// A line of its log.
+    Log(String),
+}
+
+struct Service {
+    child: Child,
+    said: mpsc::Receiver<(Instant, Said)>,
+    heard: Vec<(Instant, Said)>,
+    _dir: TempDir,
+    _sim: lj9da_sim::SimBus,
+}
+
+impl Service {
+    /// `lj9da-bridge run` with bus "wing" on a simulated bus (servos 1 and 2) and bus "tail" on
+    /// a port that does not exist, under a notify socket and a watchdog; `env`: more variables.
+    fn start(tag: &str, env: &[(&str, &str)]) -> Self {
+        let dir = TempDir::new(tag);
+        let sim = spawn_sim(sim_config(&[1, 2], 115_200));
+        let missing = dir.path().join("ttyUSB-missing");
+        let mapping = dir.path().join("bridge.toml");
+        let udp = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        let port = udp.local_addr().unwrap().port();
+        drop(udp);
+        std::fs::write(
+            &mapping,
+            format!(
+                r#"[mavlink]
+connection = "udpin:127.0.0.1:{port}"
+
+[record]
+enabled = false
+
+[[bus]]
+name = "wing"
+port = "{}"
+
+[[bus]]
+name = "tail"
+port = "{}"
+
+[[servo]]
+name = "left"
+bus = "wing"
+id = 1
+channel = 1
+
+[[servo]]
+name = "right"
+bus = "wing"
+id = 2
+channel = 2
+
+[[servo]]
+name = "rudder"
+bus = "tail"
+id = 3
+channel = 4
+"#,
+                sim.path().display(),
+                missing.display()
+            ),
+        )
+        .unwrap();
+        let socket_path = dir.path().join("notify");
+        let socket = UnixDatagram::bind(&socket_path).expect("a notify socket");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
+            .args(["run", "--config"])
+            .arg(&mapping)
+            .env("RUST_LOG", "lj9da_bridge=info")
+            .env("NOTIFY_SOCKET", &socket_path)
+            .env("WATCHDOG_USEC", WATCHDOG.as_micros().to_string())
+            .envs(env.iter().copied())
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("the bridge starts");
+        let (tx, said) = mpsc::channel();
+        let log_tx = tx.clone();
+        let stderr = child.stderr.take().unwrap();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                if log_tx.send((Instant::now(), Said::Log(line))).is_err() {
+                    break;
+                }
+            }
+        });
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 4096];
+            while let Ok(n) = socket.recv(&mut buf) {
+                let text = String::from_utf8_lossy(&buf[..n]).into_owned();
+                if tx.send((Instant::now(), Said::Notify(text))).is_err() {
+                    break;
+                }
+            }
+        });
+        Service {
+            child,
+            said,
+            heard: Vec::new(),
+            _dir: dir,
+            _sim: sim,
+        }
+    }
+
+    /// Take what the bridge says until `done` holds for what came so far (then `true`) or
+    /// until `within` has passed (`false`).
+    fn listen_until(
+        &mut self,
+        within: Duration,
+        done: impl Fn(&[(Instant, Said)]) -> bool,
+    ) -> bool {
+        let until = Instant::now() + within;
+        while !done(&self.heard) {
+            let left = until.saturating_duration_since(Instant::now());
+            match self.said.recv_timeout(left) {
+                Ok(said) => self.heard.push(said),
+                Err(_) => return false,
+            }
+        }
+        true
+    }
+
+    fn pings_after(&self, from: Instant) -> usize {
+        self.heard
+            .iter()
+            .filter(|(at, s)| {
+                *at > from && matches!(s, Said::Notify(t) if t.contains("WATCHDOG=1"))
+            })
+            .count()
+    }
+
+    fn transcript(&self) -> String {
+        self.heard
+            .iter()
+            .map(|(_, s)| format!("{s:?}"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn is_ready(said: &Said) -> bool {
+    matches!(said, Said::Notify(t) if t.lines().any(|l| l == "READY=1"))
+}
+
+fn log_has(heard: &[(Instant, Said)], text: &str) -> Option<Instant> {
+    heard
+        .iter()
+        .find(|(_, s)| matches!(s, Said::Log(l) if l.contains(text)))
+        .map(|(at, _)| *at)
+}
+
+#[test]
+fn ready_once_the_buses_tried_their_ports_then_pings_while_every_bus_thread_turns() {
+    let mut bridge = Service::start("service-ready", &[]);
+    assert!(
+        bridge.listen_until(PATIENCE, |h| h.iter().any(|(_, s)| is_ready(s))),
+        "no READY=1:\n{}",
+        bridge.transcript()
+    );
+    let (ready_at, ready) = bridge.heard.iter().find(|(_, s)| is_ready(s)).unwrap();
+    let ready_at = *ready_at;
+    // The status systemd shows: the simulated bus open, the missing port tried.
+    let Said::Notify(ready) = ready else {
+        unreachable!()
+    };
+    assert!(
+        ready.contains("STATUS=3 servos, 1 of 2 buses open"),
+        "{ready}\n{}",
+        bridge.transcript()
+    );
+    // Nothing pinged before it was ready.
+    let first_ping = bridge
+        .heard
+        .iter()
+        .position(|(_, s)| matches!(s, Said::Notify(t) if t.contains("WATCHDOG=1")));
+    let ready_pos = bridge.heard.iter().position(|(_, s)| is_ready(s)).unwrap();
+    assert!(
+        first_ping.is_none_or(|p| p >= ready_pos),
+        "{}",
+        bridge.transcript()
+    );
+
+    // Four watchdog timeouts: the missing port's back-off grows past a second meanwhile, and
+    // its thread must still turn. Pings every 500 ms: about 8 of them.
+    let window = 4 * WATCHDOG;
+    bridge.listen_until(window, |_| false);
+    let pings = bridge.pings_after(ready_at);
+    assert!(
+        pings >= 5,
+        "{pings} pings in {window:?}:\n{}",
+        bridge.transcript()
+    );
+    assert!(
+        log_has(&bridge.heard, "no longer fed").is_none(),
+        "{}",
+        bridge.transcript()
+    );
+}
+
+#[test]
+fn a_bus_thread_that_hangs_stops_the_pings_and_is_named() {
+    let mut bridge = Service::start("service-hang", &[("LJ9DA_TEST_HANG_BUS", "wing:1.5")]);
+    let stuck = "bus thread stuck";
+    assert!(
+        bridge.listen_until(PATIENCE, |h| log_has(h, stuck).is_some()),
+        "the stuck bus thread was not noticed:\n{}",
+        bridge.transcript()
+    );
+    let transcript = bridge.transcript();
+    // It pinged while the thread ran.
+    let ready_at = bridge
+        .heard
+        .iter()
+        .find(|(_, s)| is_ready(s))
+        .map(|(at, _)| *at);
+    let hung_at = log_has(&bridge.heard, "bus thread hangs now").expect("the switch's line");
+    let ready_at = ready_at.unwrap_or_else(|| panic!("no READY=1:\n{transcript}"));
+    assert!(
+        bridge.heard.iter().any(|(at, s)| *at > ready_at
+            && *at < hung_at
+            && matches!(s, Said::Notify(t) if t.contains("WATCHDOG=1"))),
+        "no ping before the hang:\n{transcript}"
+    );
+    // The line names the bus that hangs, not the one whose port is missing.
+    let line = bridge
+        .heard
+        .iter()
+        .find_map(|(_, s)| match s {
+            Said::Log(l) if l.contains(stuck) => Some(l.clone()),
+            _ => None,
+        })
+        .unwrap();
+    assert!(line.contains("wing") && !line.contains("tail"), "{line}");
+
+    // From the line on, no ping: the main loop looked (it logged the line) and keeps looking
+    // every 500 ms; over three watchdog timeouts it must never find the hung thread turning.
+    let told_at = log_has(&bridge.heard, stuck).unwrap();
+    bridge.listen_until(3 * WATCHDOG, |_| false);
+    // A ping already on its way when the line was written is no ping after it.
+    let settle = told_at + Duration::from_millis(100);
+    assert_eq!(bridge.pings_after(settle), 0, "{}", bridge.transcript());
+    assert!(
+        bridge.child.try_wait().unwrap().is_none(),
+        "the bridge itself goes on (systemd kills it):\n{}",
+        bridge.transcript()
+    );
+}
+
+#[test]
+fn a_start_that_a_bus_thread_holds_up_says_which_and_is_ready_without_pings() {
+    // The wing's thread hangs at once after its first attempt at the port, before it counts
+    // the turn: the start waits for it, says which bus it waited for, and is ready all the
+    // same; with that thread stuck, the watchdog is never fed.
+    let started = Instant::now();
+    let mut bridge = Service::start("service-held", &[("LJ9DA_TEST_HANG_BUS", "wing:0")]);
+    let wait = lj9da_bridge::runtime::service::READY_WAIT;
+    let told = "has not tried its port";
+    // The log line and the datagram come by two pipes: wait for both.
+    assert!(
+        bridge.listen_until(wait + PATIENCE, |h| {
+            h.iter().any(|(_, s)| is_ready(s)) && log_has(h, told).is_some()
+        }),
+        "no READY=1, or the wait not told:\n{}",
+        bridge.transcript()
+    );
+    let ready_at = bridge.heard.iter().find(|(_, s)| is_ready(s)).unwrap().0;
+    assert!(
+        ready_at >= started + wait,
+        "ready {:?} after the start, before the wait was over:\n{}",
+        ready_at - started,
+        bridge.transcript()
+    );
+    let line = bridge
+        .heard
+        .iter()
+        .find_map(|(_, s)| match s {
+            Said::Log(l) if l.contains(told) => Some(l.clone()),
+            _ => None,
+        })
+        .unwrap();
+    assert!(line.contains("wing"), "{line}");
+    bridge.listen_until(2 * WATCHDOG, |_| false);
+    let pings = bridge
+        .heard
+        .iter()
+        .filter(|(_, s)| matches!(s, Said::Notify(t) if t.contains("WATCHDOG=1")))
+        .count();
+    assert_eq!(pings, 0, "{}", bridge.transcript());
+}
