@@ -38,18 +38,17 @@ fn get<'a>(entries: &'a [(String, String, String)], section: &str, key: &str) ->
 fn the_systemd_unit_runs_the_bridge_as_an_unprivileged_service_logging_to_journald() {
     let unit = systemd_unit(Path::new(DEFAULT_BINARY), Path::new(DEFAULT_CONFIG));
     let e = ini(&unit);
-    assert_eq!(get(&e, "Service", "Type"), ["simple"]);
+    assert_eq!(get(&e, "Service", "Type"), ["notify"]);
     assert_eq!(
         get(&e, "Service", "ExecStart"),
         ["/usr/local/bin/lj9da-bridge run --config /etc/lj9da-bridge/bridge.toml"]
     );
-    assert_eq!(get(&e, "Service", "Restart"), ["on-failure"]);
     assert_eq!(get(&e, "Service", "User"), ["lj9da"]);
     assert_eq!(get(&e, "Service", "SupplementaryGroups"), ["dialout"]);
     assert_eq!(get(&e, "Service", "StandardError"), ["journal"]);
     assert_eq!(get(&e, "Service", "StateDirectory"), ["lj9da-bridge"]);
     // Parameter changes are saved into the mapping file, in a folder /etc otherwise protects.
-    assert_eq!(get(&e, "Service", "ProtectSystem"), ["full"]);
+    assert_eq!(get(&e, "Service", "ProtectSystem"), ["strict"]);
     assert_eq!(get(&e, "Service", "ReadWritePaths"), ["-/etc/lj9da-bridge"]);
     assert!(
         get(&e, "Service", "Environment").contains(&"RUST_LOG=warn,lj9da_bridge=info"),
@@ -57,6 +56,62 @@ fn the_systemd_unit_runs_the_bridge_as_an_unprivileged_service_logging_to_journa
     );
     assert_eq!(get(&e, "Install", "WantedBy"), ["multi-user.target"]);
     assert_eq!(get(&e, "Unit", "After"), ["network-online.target"]);
+}
+
+/// A systemd time span of the forms the unit uses (`30`, `2s`, `200ms`), in milliseconds.
+fn span_ms(value: &str) -> u64 {
+    let digits_end = value
+        .find(|c: char| !c.is_ascii_digit())
+        .unwrap_or(value.len());
+    let (digits, unit) = value.split_at(digits_end);
+    let n: u64 = digits.parse().unwrap();
+    match unit {
+        "ms" => n,
+        "s" | "" => n * 1000,
+        _ => panic!("time span {value}"),
+    }
+}
+
+#[test]
+fn the_service_comes_back_at_once_from_an_exit_a_kill_or_a_hang() {
+    let unit = systemd_unit(Path::new(DEFAULT_BINARY), Path::new(DEFAULT_CONFIG));
+    let e = ini(&unit);
+    assert_eq!(get(&e, "Service", "Restart"), ["always"]);
+    assert!(
+        span_ms(get(&e, "Service", "RestartSec")[0]) <= 200,
+        "{unit}"
+    );
+    // The watchdog: pinged every half timeout while every bus thread turns (every 100 ms at
+    // least); a hung process is killed outright, a stopped one too.
+    let watchdog = span_ms(get(&e, "Service", "WatchdogSec")[0]);
+    let shortest = lj9da_bridge::runtime::service::SHORTEST_WATCHDOG.as_millis() as u64;
+    assert!((shortest..=2000).contains(&watchdog), "{unit}");
+    assert_eq!(get(&e, "Service", "WatchdogSignal"), ["SIGKILL"]);
+    assert_eq!(get(&e, "Service", "NotifyAccess"), ["main"]);
+    // The start limit trips only for a bridge that never gets going: 100 restarts in 30 s is a
+    // cycle under 300 ms, i.e. failing within 100 ms of every start.
+    let interval = span_ms(get(&e, "Unit", "StartLimitIntervalSec")[0]);
+    let burst: u64 = get(&e, "Unit", "StartLimitBurst")[0].parse().unwrap();
+    assert!(interval / burst <= 300, "{unit}");
+    // A mapping file that does not load is the one failure a restart cannot fix.
+    assert_eq!(get(&e, "Service", "RestartPreventExitStatus"), ["2"]);
+}
+
+#[test]
+fn the_unit_opens_the_serial_ports_of_every_common_driver_and_no_other_device() {
+    let unit = systemd_unit(Path::new(DEFAULT_BINARY), Path::new(DEFAULT_CONFIG));
+    let e = ini(&unit);
+    assert_eq!(get(&e, "Service", "DevicePolicy"), ["closed"]);
+    let allowed = get(&e, "Service", "DeviceAllow");
+    for driver in ["ttyS", "ttyAMA", "ttyUSB", "ttyACM", "ttySC", "ttyTHS"] {
+        assert!(
+            allowed.contains(&format!("char-{driver} rw").as_str()),
+            "{driver}: {unit}"
+        );
+    }
+    // Real-time scheduling is what the bus threads ask for: it must not be restricted.
+    assert!(get(&e, "Service", "RestrictRealtime").is_empty(), "{unit}");
+    assert!(get(&e, "Service", "PrivateDevices").is_empty(), "{unit}");
 }
 
 #[test]
