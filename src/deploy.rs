@@ -18,10 +18,12 @@
 //! ```
 //!
 //! The service runs as the unprivileged user `lj9da` (group `dialout` opens the serial
-//! ports), logs to stderr, which journald keeps (`RUST_LOG` sets the detail), restarts on
-//! failure, and stops cleanly on SIGTERM. systemd creates `/var/lib/lj9da-bridge` for it
-//! (`StateDirectory`); point the flight record folder there in the mapping file, since
-//! `/etc` is read-only for the service.
+//! ports), logs to stderr, which journald keeps (`RUST_LOG` sets the detail), and stops cleanly
+//! on SIGTERM. It tells systemd when it is ready and feeds its watchdog while its main loop and
+//! every bus thread run ([`crate::runtime::service`]); whether it exits, is killed or hangs, it
+//! is started again within 200 ms of systemd noticing (a hang: after the 2 s watchdog). systemd
+//! creates `/var/lib/lj9da-bridge` for it (`StateDirectory`); point the flight record folder
+//! there in the mapping file, since `/etc` is read-only for the service.
 //!
 //! # The latency timer
 //!
