@@ -820,8 +820,12 @@ mod tests {
             }
             Signed::Frame(..) => panic!("signed beyond the reservation in the file"),
         };
-        // Killed here, before the reservation is written: nothing was sent past the file's.
-        let restarted = Signing::open(KEY, 2, &file, T0).unwrap();
+        // Killed here, before the reservation is written: nothing was sent past the file's
+        // reservation, and a bridge started again (its clock where it was) signs above
+        // everything sent before.
+        let mut restarted = Signing::open(KEY, 2, &file, T0).unwrap();
+        let (after_kill, _) = restarted.sign_now(0, header(), &outputs(), T0);
+        assert!(stamp_of(&after_kill) > stamp_of(&first));
         drop(restarted);
         // Or the reservation is written, the frame sent, and the bridge killed right after.
         file.store(reserve).unwrap();
