@@ -356,13 +356,39 @@ mod tests {
         assert_eq!(std::mem::align_of::<SerialRs485>(), 4);
     }
 
+    /// The value of `#define name (1 << n)` (or `_BITUL(n)`) in a C header.
+    fn bit_defined(header: &str, name: &str) -> Option<u32> {
+        header.lines().find_map(|line| {
+            let rest = line.trim_start().strip_prefix("#define")?.trim_start();
+            let value = rest.strip_prefix(name)?;
+            if !value.starts_with(char::is_whitespace) {
+                return None;
+            }
+            let value = value.split("/*").next()?.trim();
+            let shift = value
+                .strip_prefix("(1 <<")
+                .and_then(|v| v.strip_suffix(')'))
+                .or_else(|| value.strip_prefix("_BITUL(")?.strip_suffix(')'))?;
+            Some(1 << shift.trim().parse::<u32>().ok()?)
+        })
+    }
+
     #[test]
     fn the_flags_are_the_kernels() {
-        assert_eq!(SER_RS485_ENABLED, 0x01);
-        assert_eq!(SER_RS485_RTS_ON_SEND, 0x02);
-        assert_eq!(SER_RS485_RTS_AFTER_SEND, 0x04);
-        assert_eq!(SER_RS485_RX_DURING_TX, 0x10);
-        assert_eq!(SER_RS485_TERMINATE_BUS, 0x20);
+        // The kernel's own definitions, from its user-space headers (Debian's linux-libc-dev,
+        // which every C toolchain here brings).
+        let path = "/usr/include/linux/serial.h";
+        let header = std::fs::read_to_string(path)
+            .unwrap_or_else(|e| panic!("{path}: {e} (install linux-libc-dev)"));
+        for (name, ours) in [
+            ("SER_RS485_ENABLED", SER_RS485_ENABLED),
+            ("SER_RS485_RTS_ON_SEND", SER_RS485_RTS_ON_SEND),
+            ("SER_RS485_RTS_AFTER_SEND", SER_RS485_RTS_AFTER_SEND),
+            ("SER_RS485_RX_DURING_TX", SER_RS485_RX_DURING_TX),
+            ("SER_RS485_TERMINATE_BUS", SER_RS485_TERMINATE_BUS),
+        ] {
+            assert_eq!(bit_defined(&header, name), Some(ours), "{name} in {path}");
+        }
     }
 
     #[cfg(all(
