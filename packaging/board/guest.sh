@@ -65,7 +65,9 @@ cmd_probe() {
 cmd_facts() {
     say "KERNEL=$(uname -r)"
     say "SYSTEMD=$(systemctl --version | head -n 1)"
+    say "SYSTEM_STATE=$(timeout 120 systemctl is-system-running --wait 2>/dev/null || true)"
     say "BOOT=$(systemd-analyze time 2>/dev/null | head -n 1 || true)"
+    systemctl --failed --no-legend --plain 2>/dev/null | sed 's/^/FAILED_UNIT /' || true
     say "UART_DRIVER=$(basename "$(readlink -f /sys/class/tty/ttyAMA0/device/driver)")"
     say "USB_DRIVER=$(basename "$(readlink -f /sys/class/tty/$usb_tty/device/driver 2>/dev/null)" 2>/dev/null || true)"
     say "USB_BY_ID=$(usb_by_id || true)"
