@@ -61,6 +61,8 @@ pub struct CrateLink {
     open: watch::Sender<Option<Connection>>,
     /// Wakes the opening task when the connection failed (or the link is dropped).
     failed: Arc<Notify>,
+    /// Attempts to open the connection that failed, since the start.
+    failed_opens: Arc<std::sync::atomic::AtomicU64>,
 }
 
 impl Drop for CrateLink {
@@ -76,10 +78,12 @@ impl CrateLink {
             address: address.to_string(),
             open: watch::Sender::new(None),
             failed: Arc::new(Notify::new()),
+            failed_opens: Arc::default(),
         });
-        let (weak, failed, address) = (
+        let (weak, failed, failed_opens, address) = (
             Arc::downgrade(&link),
             link.failed.clone(),
+            link.failed_opens.clone(),
             address.to_string(),
         );
         // The task holds the link only between its waits, so that dropping the link ends it.
@@ -112,6 +116,7 @@ impl CrateLink {
                             );
                         }
                         failures += 1;
+                        failed_opens.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                         drop(link);
                         tokio::time::sleep(RECONNECT_EVERY).await;
                     }
@@ -745,7 +750,22 @@ mod tests {
         let wait = Duration::from_secs(10);
         let port = unused_port();
         let link = connect(&format!("tcpout:127.0.0.1:{port}")).await.unwrap();
-        tokio::time::sleep(Duration::from_millis(300)).await;
+        // Once an attempt to connect has failed, the link has nowhere to send.
+        let Link::Crate(crate_link) = &link else {
+            panic!("a tcpout link is the mavlink crate's")
+        };
+        let started = tokio::time::Instant::now();
+        while crate_link
+            .failed_opens
+            .load(std::sync::atomic::Ordering::Relaxed)
+            == 0
+        {
+            assert!(
+                started.elapsed() < wait,
+                "no attempt to connect in {wait:?}"
+            );
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
         assert!(!link.can_send(), "nobody listens yet");
         let listener = tokio::net::TcpListener::bind(("127.0.0.1", port))
             .await
@@ -770,7 +790,12 @@ mod tests {
             .await
             .expect("the link is made without waiting for a client")
             .unwrap();
-        tokio::time::sleep(Duration::from_millis(300)).await;
+        // Once it listens (the port is taken), with no client, it has nowhere to send.
+        let started = tokio::time::Instant::now();
+        while std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
+            assert!(started.elapsed() < wait, "not listening after {wait:?}");
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
         assert!(!link.can_send(), "no client yet");
         for sequence in [3, 4] {
             // The link binds its port again after the last client left: it may not be
