@@ -76,6 +76,8 @@ cmd_facts() {
     say "RS485_BEFORE=$(rs485_get "$uart")"
     say "--- /dev/serial/by-id"
     ls -l /dev/serial/by-id/ 2>&1 || true
+    say "--- systemd-analyze blame"
+    systemd-analyze blame --no-pager 2>&1 | head -n 12 || true
 }
 
 # TIOCGRS485 on a port: `flags=0x… before=… after=…` or the error. Opening a port does not change
