@@ -5,7 +5,7 @@
 
 mod tempdir;
 
-use lj9da_bridge::bus::{BusConfig, Goal, ServoSetup, ShutdownForce, spawn_bus};
+use lj9da_bridge::bus::{BusConfig, Goal, ServoSetup, ShutdownForce, spawn_bus_observed};
 use lj9da_bridge::protocol::{BaudRate, MmCenti, ServoId};
 use lj9da_bridge::record::format::RecordServo;
 use lj9da_bridge::record::{RecordBody, RecordLimits, Recorder, StatusFeed, read_record, summary};
@@ -34,35 +34,21 @@ async fn a_simulated_run_is_recorded_and_its_summary_matches_the_simulation() {
     bus_cfg.turnaround = Duration::from_millis(20);
     bus_cfg.offline_after_timeouts = 50;
     bus_cfg.stale_after = Duration::from_secs(2);
-    let bus = spawn_bus(bus_cfg, sim.path());
     let dir = TempDir::new("sim");
     let record = Recorder::start(dir.path(), &servos, RecordLimits::default()).unwrap();
 
-    // The status watch feeds telemetry and health; the event channel feeds events.
-    let mut feed = StatusFeed::new(record.clone(), &servos);
-    let mut status = bus.watch_status();
-    let feeder = tokio::spawn(async move {
-        // Samples each servo had answered before the feed first saw its telemetry: the feed
-        // records that one and cannot know of the earlier ones. On an idle machine that is the
-        // start-up sample at most; a busy one may start the feeder later.
-        let mut first_seen: Vec<Option<u64>> = Vec::new();
-        while status.changed().await.is_ok() {
-            let snapshot = status.borrow_and_update().clone();
-            first_seen.resize(snapshot.servos.len(), None);
-            for (first, servo) in first_seen.iter_mut().zip(&snapshot.servos) {
-                if first.is_none() && servo.telemetry.is_some() {
-                    *first = Some(servo.telemetry_count);
-                }
-            }
-            feed.observe(&snapshot);
-        }
-        let predated: u64 = first_seen
-            .iter()
-            .flatten()
-            .map(|count| count.saturating_sub(1))
-            .sum();
-        (feed, predated)
-    });
+    // As the bridge does: the bus thread hands every status it publishes to the feed, which
+    // records telemetry and health; the event channel feeds events.
+    let feed = std::sync::Arc::new(std::sync::Mutex::new(StatusFeed::new(
+        record.clone(),
+        &servos,
+    )));
+    let observed = feed.clone();
+    let bus = spawn_bus_observed(
+        bus_cfg,
+        sim.path(),
+        Box::new(move |s| observed.lock().unwrap().observe(s)),
+    );
     let events_feed = StatusFeed::new(record.clone(), &servos);
     let mut events = bus.events();
     let event_task = tokio::spawn(async move {
@@ -127,10 +113,7 @@ async fn a_simulated_run_is_recorded_and_its_summary_matches_the_simulation() {
     let truth = sim.handle().snapshots();
 
     bus.shutdown(ShutdownForce::AsIs).await;
-    let (feed, predated) = tokio::time::timeout(Duration::from_secs(5), feeder)
-        .await
-        .expect("the feeder ends when the bus driver stops")
-        .unwrap();
+    let missed = feed.lock().unwrap().missed_samples();
     event_task.abort();
     let start = record.start_instant();
     let stats = record.finish();
@@ -144,16 +127,31 @@ async fn a_simulated_run_is_recorded_and_its_summary_matches_the_simulation() {
     let second_goal_s = second_goal_at.duration_since(start).as_secs_f64();
     let end_s = rec.end_t_us() as f64 / 1e6;
 
-    // Every sample the servos answered was recorded, or counted as missed by the feed, or
-    // predates the feed's first sight of the servo (counted by the feeder, not assumed to be
-    // the start-up sample alone: on a busy machine the feeder starts later).
+    // Every sample the servos answered was recorded: the feed sees every status the bus
+    // thread publishes, and nothing was missed.
     let recorded: u64 = sum.servos.iter().map(|s| s.samples).sum();
     let answered: u64 = final_status.servos.iter().map(|s| s.telemetry_count).sum();
-    assert!(recorded + feed.missed_samples() <= answered);
-    assert!(
-        recorded + feed.missed_samples() + predated >= answered,
-        "{recorded} recorded + {} missed + {predated} before the feed < {answered} answered",
-        feed.missed_samples()
+    assert_eq!(missed, 0);
+    assert_eq!(
+        recorded, answered,
+        "{recorded} recorded of {answered} answered"
+    );
+    // And every read of position (and current) between two full ones that was answered.
+    let reads = rec
+        .records
+        .iter()
+        .filter(|r| {
+            matches!(
+                r.body,
+                RecordBody::Motion { .. } | RecordBody::Position { .. }
+            )
+        })
+        .count() as u64;
+    let replies = final_status.counters.telemetry_replies;
+    assert_eq!(
+        recorded + reads,
+        replies,
+        "{recorded} samples and {reads} reads recorded of {replies} replies"
     );
 
     for (s, snapshot) in sum.servos.iter().zip(&truth) {
@@ -201,8 +199,8 @@ async fn a_simulated_run_is_recorded_and_its_summary_matches_the_simulation() {
     );
     assert!(right.peak_current_a().unwrap() > 1.5);
     // The reads of position and current between two full ones are recorded with their current:
-    // the stall current shows in them too. (The feed here looks at the status watch, which keeps
-    // the newest status only: a busy machine may show it fewer of them.)
+    // the stall current shows in them too, in every read of the stall's last half second and
+    // ten polls at least.
     let stall_motions = rec
         .records
         .iter()
@@ -212,7 +210,7 @@ async fn a_simulated_run_is_recorded_and_its_summary_matches_the_simulation() {
         })
         .count();
     assert!(
-        stall_motions >= 1,
+        stall_motions >= 5,
         "{stall_motions} motion records at stall current"
     );
     assert!(right.max_settled_error_mm.unwrap() > 5.0);
