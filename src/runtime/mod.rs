@@ -28,6 +28,7 @@ use crate::mavlink::{
 };
 use crate::protocol::ServoId;
 use crate::record::{RecordHandle, RecordLimits, RecordServo, Recorder, StatusFeed};
+use crate::serial::rs485::Rs485Mode;
 use ::mavlink::MavHeader;
 use ::mavlink::dialects::common::MavMessage;
 use links::{Link, LinkWriter, SharedSigning};
@@ -146,7 +147,7 @@ impl Buses {
                 .cloned()
                 .unwrap_or_else(|| bus.port.clone());
             tracing::info!(bus = %bus.name, port = %port.display(), baud = %bus.baud, "opening bus");
-            bus_cfg.rs485 = crate::serial::rs485::mode_for_bus(bus, ports.contains_key(&bus.name));
+            bus_cfg.rs485 = rs485_mode(bus, ports.contains_key(&bus.name));
             handles.push(match record {
                 Some(r) => {
                     let mut feed = StatusFeed::new(r.clone(), &RecordServo::from_config(cfg));
@@ -200,6 +201,19 @@ impl Buses {
         }
         (reports, views)
     }
+}
+
+/// The RS485 mode bus `bus` of a mapping file asks of its port (`None` when the port is a
+/// simulation's pseudo-terminal, `simulated`, which has no RS485 mode to set), having said once
+/// what the mode asks of the servos.
+fn rs485_mode(bus: &crate::config::BusSection, simulated: bool) -> Option<Rs485Mode> {
+    let mode = bus.rs485.filter(|_| !simulated);
+    if mode.is_some()
+        && let Some(w) = crate::config::warnings::rs485_hold_after_send(bus)
+    {
+        tracing::warn!("{}", w.trim_start_matches("warning: "));
+    }
+    mode
 }
 
 /// How long a servo's latest reading is passed on to the ground station (and quoted in a

@@ -326,19 +326,6 @@ impl Rs485Request {
     }
 }
 
-/// The RS485 mode bus `bus` of a mapping file asks of its port (`None` when the port is a
-/// simulation's pseudo-terminal, `simulated`, which has no RS485 mode to set), having said once
-/// what the mode asks of the servos.
-pub fn mode_for_bus(bus: &crate::config::BusSection, simulated: bool) -> Option<Rs485Mode> {
-    let mode = bus.rs485.filter(|_| !simulated);
-    if mode.is_some()
-        && let Some(w) = crate::config::warnings::rs485_hold_after_send(bus)
-    {
-        tracing::warn!("{}", w.trim_start_matches("warning: "));
-    }
-    mode
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
