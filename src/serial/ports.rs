@@ -9,12 +9,12 @@
 //! PC) but found no UART there. For each port: its stable names (`/dev/serial/by-id/…`,
 //! `/dev/serial/by-path/…`, and aliases such as the Raspberry Pi's `/dev/serial0`), its
 //! driver, the USB device it belongs to (vendor and product IDs, manufacturer, product, serial
-//! number), an FTDI-style latency timer (read with [`crate::deploy::check_latency_with`],
+//! number), an FTDI-style latency timer (read with [`crate::serial::latency::check_latency_with`],
 //! never changed here), whether this user may open it (`access(2)`: nothing is opened, so no
 //! adapter sees its modem lines move), and which processes have it open (`/proc/<pid>/fd`, as
 //! far as this user may look: all of them for root).
 
-use crate::deploy::{LatencyCheck, ReportOnly, check_latency_with};
+use crate::serial::latency::{LatencyCheck, ReportOnly, check_latency_with};
 use serde::Serialize;
 use std::fs;
 use std::path::{Path, PathBuf};
