@@ -3,7 +3,7 @@
 
 use super::error::{ConfigError, Scope};
 use super::raw::{RawMavlink, RawTelemetry};
-use crate::mavlink::signing::SigningKey;
+use super::signing_key::SigningKey;
 use std::fmt;
 use std::path::{Path, PathBuf};
 use toml::Spanned;

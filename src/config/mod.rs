@@ -56,6 +56,7 @@ pub mod mavlink;
 mod raw;
 pub mod record;
 pub mod servo;
+pub mod signing_key;
 mod table;
 pub mod warnings;
 
