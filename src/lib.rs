@@ -22,3 +22,4 @@ pub mod record;
 pub mod runtime;
 pub mod serial;
 pub mod simulation;
+pub mod terminal;
