@@ -182,6 +182,14 @@ fn log_has(heard: &[(Instant, Said)], text: &str) -> Option<Instant> {
         .map(|(at, _)| *at)
 }
 
+/// The first log line holding `text`.
+fn log_line(heard: &[(Instant, Said)], text: &str) -> Option<String> {
+    heard.iter().find_map(|(_, s)| match s {
+        Said::Log(l) if l.contains(text) => Some(l.clone()),
+        _ => None,
+    })
+}
+
 #[test]
 fn ready_once_the_buses_tried_their_ports_then_pings_while_every_bus_thread_turns() {
     let mut bridge = Service::start("service-ready", &[]);
@@ -255,14 +263,7 @@ fn a_bus_thread_that_hangs_stops_the_pings_and_is_named() {
         "no ping before the hang:\n{transcript}"
     );
     // The line names the bus that hangs, not the one whose port is missing.
-    let line = bridge
-        .heard
-        .iter()
-        .find_map(|(_, s)| match s {
-            Said::Log(l) if l.contains(stuck) => Some(l.clone()),
-            _ => None,
-        })
-        .unwrap();
+    let line = log_line(&bridge.heard, stuck).unwrap();
     assert!(line.contains("wing") && !line.contains("tail"), "{line}");
 
     // From the line on, no ping: the main loop looked (it logged the line) and keeps looking
@@ -303,14 +304,7 @@ fn a_start_that_a_bus_thread_holds_up_says_which_and_is_ready_without_pings() {
         ready_at - started,
         bridge.transcript()
     );
-    let line = bridge
-        .heard
-        .iter()
-        .find_map(|(_, s)| match s {
-            Said::Log(l) if l.contains(told) => Some(l.clone()),
-            _ => None,
-        })
-        .unwrap();
+    let line = log_line(&bridge.heard, told).unwrap();
     assert!(line.contains("wing"), "{line}");
     bridge.listen_until(2 * WATCHDOG, |_| false);
     let pings = bridge
