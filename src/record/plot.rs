@@ -105,6 +105,44 @@ pub(crate) fn ticks(lo: f64, hi: f64, target: f64) -> Vec<f64> {
     out
 }
 
+/// A plot area's horizontal grid lines with their values at its left, about `target` of them
+/// between `lo` and `hi`; `area` is the area's left edge and width, `y_of` a value's height.
+pub(crate) fn y_grid(
+    svg: &mut String,
+    area: (f64, f64),
+    (lo, hi): (f64, f64),
+    target: f64,
+    y_of: impl Fn(f64) -> f64,
+) {
+    let (left, width) = area;
+    let step = nice_step(hi - lo, target);
+    for v in ticks(lo, hi, target) {
+        let y = y_of(v);
+        let _ = writeln!(
+            svg,
+            r##"<line x1="{left}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="#eee"/><text x="{:.1}" y="{:.1}" text-anchor="end">{}</text>"##,
+            left + width,
+            left - 6.0,
+            y + 4.0,
+            tick_label(v, step)
+        );
+    }
+}
+
+/// A dashed reference line across a plot area (`area`: left edge and width) at height `y`,
+/// labelled at its right end.
+pub(crate) fn reference_line(svg: &mut String, area: (f64, f64), y: f64, color: &str, label: &str) {
+    let (left, width) = area;
+    let _ = writeln!(
+        svg,
+        r#"<line class="reference" x1="{left}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="{color}" stroke-dasharray="2 4"/><text x="{:.1}" y="{:.1}" fill="{color}" text-anchor="end">{}</text>"#,
+        left + width,
+        left + width - 4.0,
+        y - 3.0,
+        escape(label)
+    );
+}
+
 pub(crate) fn tick_label(v: f64, step: f64) -> String {
     let decimals = if step >= 1.0 {
         0
@@ -369,18 +407,7 @@ pub fn servo_svg(rec: &Recording, servo: usize, title: &str) -> String {
                 );
             }
         }
-        let y_step = nice_step(hi - lo, 5.0);
-        for v in ticks(lo, hi, 5.0) {
-            let y = y_of(v);
-            let _ = writeln!(
-                svg,
-                r##"<line x1="{LEFT}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="#eee"/><text x="{:.1}" y="{:.1}" text-anchor="end">{}</text>"##,
-                LEFT + PLOT_WIDTH,
-                LEFT - 6.0,
-                y + 4.0,
-                tick_label(v, y_step)
-            );
-        }
+        y_grid(&mut svg, (LEFT, PLOT_WIDTH), (lo, hi), 5.0, y_of);
         for &t in &x_ticks {
             let x = x_of(t);
             let _ = writeln!(
@@ -403,15 +430,7 @@ pub fn servo_svg(rec: &Recording, servo: usize, title: &str) -> String {
             escape(panel.title)
         );
         for &(v, label, color) in &panel.references {
-            let y = y_of(v);
-            let _ = writeln!(
-                svg,
-                r#"<line class="reference" x1="{LEFT}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="{color}" stroke-dasharray="2 4"/><text x="{:.1}" y="{:.1}" fill="{color}" text-anchor="end">{}</text>"#,
-                LEFT + PLOT_WIDTH,
-                LEFT + PLOT_WIDTH - 4.0,
-                y - 3.0,
-                escape(label)
-            );
+            reference_line(&mut svg, (LEFT, PLOT_WIDTH), y_of(v), color, label);
         }
         let mut drawn = false;
         for s in &panel.series {

@@ -11,7 +11,7 @@
 
 use super::clock::Utc;
 use super::page::ZOOM_SCRIPT;
-use super::plot::{escape, nice_step, tick_label, ticks};
+use super::plot::{escape, nice_step, reference_line, ticks, y_grid};
 use super::trend::{
     ALARM_C, Flight, HOLDING_MIN_RISE_A, MARGIN_MIN_DROP_C, RISE_LIMIT, ServoTrend, Trend,
 };
@@ -163,18 +163,7 @@ pub fn servo_trend_svg(s: &ServoTrend) -> String {
             svg,
             r##"<rect x="{LEFT}" y="{top:.1}" width="{PLOT_WIDTH}" height="{PANEL_HEIGHT}" fill="none" stroke="#999"/>"##
         );
-        let y_step = nice_step(vhi - vlo, 4.0);
-        for v in ticks(vlo, vhi, 4.0) {
-            let y = y_of(v);
-            let _ = writeln!(
-                svg,
-                r##"<line x1="{LEFT}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="#eee"/><text x="{:.1}" y="{:.1}" text-anchor="end">{}</text>"##,
-                LEFT + PLOT_WIDTH,
-                LEFT - 6.0,
-                y + 4.0,
-                tick_label(v, y_step)
-            );
-        }
+        y_grid(&mut svg, (LEFT, PLOT_WIDTH), (vlo, vhi), 4.0, y_of);
         for &d in &x_ticks {
             let ns = lo + (d * NS_PER_DAY) as i64;
             let x = x_of(ns);
@@ -196,14 +185,7 @@ pub fn servo_trend_svg(s: &ServoTrend) -> String {
             );
         }
         if let Some((v, label)) = p.reference {
-            let y = y_of(v);
-            let _ = writeln!(
-                svg,
-                r##"<line class="reference" x1="{LEFT}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="#d62728" stroke-dasharray="2 4"/><text x="{:.1}" y="{:.1}" fill="#d62728" text-anchor="end">{label}</text>"##,
-                LEFT + PLOT_WIDTH,
-                LEFT + PLOT_WIDTH - 4.0,
-                y - 3.0
-            );
+            reference_line(&mut svg, (LEFT, PLOT_WIDTH), y_of(v), "#d62728", label);
         }
         if p.points.is_empty() {
             let _ = writeln!(
