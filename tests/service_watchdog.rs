@@ -314,3 +314,28 @@ fn a_start_that_a_bus_thread_holds_up_says_which_and_is_ready_without_pings() {
         .count();
     assert_eq!(pings, 0, "{}", bridge.transcript());
 }
+
+#[test]
+fn a_bridge_that_hears_no_autopilot_says_so_and_where_it_listens() {
+    let started = Instant::now();
+    let mut bridge = Service::start("service-no-autopilot", &[]);
+    let note = "no autopilot heard for";
+    assert!(
+        bridge.listen_until(Duration::from_secs(10) + PATIENCE, |h| log_has(h, note)
+            .is_some()),
+        "nothing said of the missing autopilot:\n{}",
+        bridge.transcript()
+    );
+    let told_at = log_has(&bridge.heard, note).unwrap();
+    assert!(
+        told_at >= started + Duration::from_secs(10),
+        "{}",
+        bridge.transcript()
+    );
+    let line = log_line(&bridge.heard, note).unwrap();
+    assert!(line.contains("udpin:127.0.0.1:"), "{line}");
+    assert!(
+        line.contains("SERIALn_PROTOCOL") && line.contains("MAV_n_CONFIG"),
+        "{line}"
+    );
+}

@@ -48,6 +48,11 @@ const READY_MESSAGES: usize = 8;
 
 /// How often the view is refreshed at most.
 const VIEW_PERIOD: std::time::Duration = std::time::Duration::from_millis(50);
+/// How long after the start the bridge first says that it has heard no autopilot yet; the
+/// interval then doubles, up to [`NO_AUTOPILOT_NOTE_MAX`].
+const NO_AUTOPILOT_NOTE: std::time::Duration = std::time::Duration::from_secs(10);
+const NO_AUTOPILOT_NOTE_MAX: std::time::Duration = std::time::Duration::from_secs(60);
+
 /// How old the view may grow while nothing else wakes the loop (no autopilot yet, or one that
 /// went quiet): the live table redraws five times a second.
 const VIEW_STALE: std::time::Duration = std::time::Duration::from_millis(200);
@@ -457,6 +462,8 @@ struct Bridge {
     texts: std::collections::VecDeque<String>,
     /// systemd's watchdog, once the bridge told it that it is ready.
     watchdog: Option<Watchdog>,
+    /// Until an autopilot is found: since when the bridge waits, and when it next says so.
+    no_autopilot: Option<(Instant, Instant, std::time::Duration)>,
 }
 
 /// One input of the loop, in the order the loop prefers them.
@@ -466,7 +473,8 @@ enum Input {
     Edited(ParamSet, Result<Config, String>),
     BusEvent(usize, BusEvent),
     Timeout,
-    /// Only the view (nothing happened for [`VIEW_STALE`]) or the watchdog's ping is due.
+    /// Only the view (nothing happened for [`VIEW_STALE`]), the watchdog's ping or the note
+    /// that no autopilot has been heard is due.
     Housekeeping,
 }
 
@@ -494,7 +502,7 @@ impl Bridge {
         for address in &addresses {
             links.push(links::connect(address).await?);
         }
-        tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links set up");
+        tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links set up; waiting for the autopilot's HEARTBEAT");
         let signing = links::open_signing(&cfg, links.len(), record_dir.as_deref())?;
         let record = record_dir
             .filter(|_| cfg.record.enabled)
@@ -545,6 +553,10 @@ impl Bridge {
             view_at: Instant::now(),
             texts: std::collections::VecDeque::with_capacity(VIEW_TEXTS),
             watchdog: None,
+            no_autopilot: {
+                let now = Instant::now();
+                Some((now, now + NO_AUTOPILOT_NOTE, NO_AUTOPILOT_NOTE))
+            },
         })
     }
 
@@ -666,7 +678,33 @@ impl Bridge {
             }
             self.refresh_view();
             self.feed_watchdog();
+            self.note_no_autopilot();
         }
+    }
+
+    /// Say, 10 s after the start and then every doubled interval up to a minute, that no
+    /// autopilot has been heard yet, and where the bridge listens.
+    fn note_no_autopilot(&mut self) {
+        let Some((since, next, every)) = self.no_autopilot else {
+            return;
+        };
+        if self.core.autopilot().is_some() {
+            self.no_autopilot = None;
+            return;
+        }
+        let now = Instant::now();
+        if now < next {
+            return;
+        }
+        tracing::warn!(
+            "no autopilot heard for {} s on {}: the buses run and hold the servos meanwhile; \
+             check that the autopilot sends MAVLink there (ArduPilot: SERIALn_PROTOCOL = 2 on that \
+             port; PX4: MAV_n_CONFIG), and that its system and component IDs are the mapping file's",
+            now.duration_since(since).as_secs(),
+            self.cfg.mavlink.connection
+        );
+        let every = (every * 2).min(NO_AUTOPILOT_NOTE_MAX);
+        self.no_autopilot = Some((since, now + every, every));
     }
 
     /// Wait for the next input: a stop first, then messages, finished parameter changes, bus
@@ -677,11 +715,17 @@ impl Bridge {
         let core_deadline = self.core.poll_timeout();
         let view_deadline = self.view.as_ref().map(|_| self.view_at + VIEW_STALE);
         let watchdog_deadline = self.watchdog.as_ref().map(Watchdog::due_at);
-        let deadline = [core_deadline, view_deadline, watchdog_deadline]
-            .into_iter()
-            .flatten()
-            .min()
-            .map(tokio::time::Instant::from_std);
+        let note_deadline = self.no_autopilot.map(|(_, next, _)| next);
+        let deadline = [
+            core_deadline,
+            view_deadline,
+            watchdog_deadline,
+            note_deadline,
+        ]
+        .into_iter()
+        .flatten()
+        .min()
+        .map(tokio::time::Instant::from_std);
         tokio::select! {
             biased;
             changed = stop.changed() => {
