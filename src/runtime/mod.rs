@@ -697,7 +697,7 @@ impl Bridge {
             return;
         }
         tracing::warn!(
-            "no autopilot heard for {} s on {}: the buses run and hold the servos meanwhile; \
+            "no autopilot heard for {} s on {}: the buses run meanwhile; \
              check that the autopilot sends MAVLink there (ArduPilot: SERIALn_PROTOCOL = 2 on that \
              port; PX4: MAV_n_CONFIG), and that its system and component IDs are the mapping file's",
             now.duration_since(since).as_secs(),
