@@ -17,6 +17,8 @@ dropin_dir=/etc/systemd/system/lj9da-bridge.service.d
 unit=lj9da-bridge.service
 usb_tty=ttyUSB0
 uart=/dev/ttyAMA0
+# The reply allowance of both buses in the mapping file (see `mapping`).
+turnaround_ms=50
 
 say() { printf '%s\n' "$*"; }
 main_pid() { systemctl show -p MainPID --value "$unit"; }
@@ -129,6 +131,8 @@ mapping() {
     cat <<EOF
 # The board in a box: a PL011 UART board with its transceiver's DE on RTS (bus "uart") and a
 # USB–RS485 adapter (bus "usb"), two servos each; the autopilot and a ground station on UDP.
+# The emulated board (QEMU, TCG) hands a reply to the bridge tens of milliseconds after the
+# servo sent it: each bus allows $turnaround_ms ms for that (a real adapter needs the default).
 [mavlink]
 connection = "$connection"
 gcs = "udpin:0.0.0.0:14561"
@@ -141,12 +145,14 @@ esc_index_base = 0
 name = "uart"
 port = "$uart"
 baud = 115200
+turnaround_ms = $turnaround_ms
 $uart_rs485
 
 [[bus]]
 name = "usb"
 port = "$by_id"
 baud = 115200
+turnaround_ms = $turnaround_ms
 $usb_rs485
 
 [[servo]]
@@ -212,7 +218,7 @@ cmd_latency() {
 cmd_rs485() {
     say "RS485_NOW=$(rs485_get "$uart")"
     say "--- journal"
-    journalctl -u "$unit" --no-pager -o cat 2>&1 | grep -i 'rs485' || say "(no RS485 line in the journal)"
+    journalctl -u "$unit" --no-pager -o cat 2>&1 | grep "RS485 mode" || say "(no RS485 line in the journal)"
 }
 
 # A mapping that asks RS485 mode of the USB adapter: the service is stopped for it (one program
