@@ -56,9 +56,22 @@ pub fn render(view: &BridgeView) -> String {
         if view.failsafe { "ACTIVE" } else { "no" },
         drops_text(view)
     );
+    // The name and bus columns are as wide as their longest entry: the columns after them
+    // stay in line whatever the mapping file calls its servos and buses.
+    let width = |header: &str, values: &mut dyn Iterator<Item = usize>| {
+        values.fold(header.chars().count(), usize::max)
+    };
+    let name_w = width(
+        "servo",
+        &mut view.servos.iter().map(|s| s.name.chars().count()),
+    );
+    let bus_w = width(
+        "bus",
+        &mut view.servos.iter().map(|s| s.bus.chars().count()),
+    );
     let _ = writeln!(
         out,
-        "{:<14} {:<6} {:>3} {:>3} {:>9} {:>9} {:>8} {:>7} {:>7}  state",
+        "{:<name_w$} {:<bus_w$} {:>3} {:>3} {:>9} {:>9} {:>9} {:>7} {:>7}  state",
         "servo", "bus", "id", "ch", "goal mm", "pos mm", "current A", "temp C", "volt V"
     );
     for s in &view.servos {
@@ -66,7 +79,7 @@ pub fn render(view: &BridgeView) -> String {
         let state = state_text(s);
         let _ = writeln!(
             out,
-            "{:<14} {:<6} {:>3} {:>3} {} {} {} {} {}  {}",
+            "{:<name_w$} {:<bus_w$} {:>3} {:>3} {} {} {} {} {}  {}",
             s.name,
             s.bus,
             s.id,
@@ -136,6 +149,43 @@ pub fn state_text(s: &crate::runtime::ServoView) -> String {
 mod tests {
     use super::*;
     use crate::mavlink::signing::DropCounts;
+
+    #[test]
+    fn the_columns_stay_in_line_with_long_servo_and_bus_names() {
+        let servo = |name: &str, bus: &str, id: u8| crate::runtime::ServoView {
+            name: name.into(),
+            bus: bus.into(),
+            id: crate::protocol::ServoId::new(id).unwrap(),
+            channel: id,
+            report: crate::mavlink::ServoReport {
+                position_mm: Some(-12.5),
+                current_a: Some(0.25),
+                ..Default::default()
+            },
+            goal_mm: Some(-12.5),
+            health: crate::bus::Health::Online,
+        };
+        let view = BridgeView {
+            servos: vec![
+                servo("left_outer_aileron", "surfaces", 1),
+                servo("rudder", "tail", 12),
+            ],
+            ..BridgeView::default()
+        };
+        let text = render(&view);
+        let lines: Vec<&str> = text.lines().skip(1).collect();
+        // The state column starts, and the goal column (right-aligned) ends, where the
+        // header's do.
+        let header_state = lines[0].find("  state").unwrap();
+        for line in &lines[1..] {
+            assert_eq!(line.rfind("  "), Some(header_state), "{text}");
+            assert_eq!(
+                line.find("-12.50").map(|at| at + "-12.50".len()),
+                lines[0].find("goal mm").map(|at| at + "goal mm".len()),
+                "{text}"
+            );
+        }
+    }
 
     #[test]
     fn the_autopilot_line_shows_signing_drops_only_with_signing_on() {
