@@ -237,6 +237,7 @@ def section(lines, name):
 
 TS = re.compile(r"^(\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d+)Z ")
 PACKET = re.compile(r"event=Packet\(.*?bytes: \[([0-9, ]*)\].*?acted: \[([0-9, ]*)\], collided: (true|false)")
+STATS_ROW = re.compile(r"^\s+packets \d+ replies \d+ bad-sums \d+ garbage \d+ collisions \d+ .*$")
 STATUS_ROW = re.compile(r"^\s+(\d+)\s+(yes|no)\s+(\S+)\s+(-?\d+\.\d+)\s+(-?\d+\.\d+)\s")
 
 
@@ -282,6 +283,7 @@ class SimLog:
         self.last_ts = None
         self.packets = []  # (t, {id: goal}) of every understood host packet
         self.status = []  # (t, id, online, force, goal_mm, pos_mm)
+        self.stats = {}  # the latest counters: packets, replies, bad-sums, garbage (bytes), …
 
     def poll(self):
         with open(self.path, "rb") as f:
@@ -301,6 +303,10 @@ class SimLog:
                     acted = {int(x) for x in p.group(2).split(",") if x.strip()}
                     goals = {i: g for i, g in goals_of(frame).items() if i in acted or i == 255}
                     self.packets.append((self.last_ts, goals))
+                continue
+            c = STATS_ROW.match(line)
+            if c:
+                self.stats = dict(zip(c.group(0).split()[0::2], map(int, c.group(0).split()[1::2])))
                 continue
             s = STATUS_ROW.match(line)
             if s and self.last_ts is not None:
@@ -545,6 +551,9 @@ class Board:
                 f"servo {i}: {len(per_id[i])} goal writes ({current[i]} the autopilot's current), "
                 f"position spread {spread[i]:.2f} mm, {arrived[i]} status rows at the goal"
                 for i in ids)
+            st = sim.stats
+            detail += (f"; the simulator: {st.get('packets')} packets, {st.get('replies')} replies, "
+                       f"{st.get('garbage')} bytes of garbage, {st.get('collisions')} collisions")
             r.check(f"servos move on bus {bus}", ok, detail)
         self.telemetry(t1 - t0)
 
@@ -690,12 +699,11 @@ class Board:
                 return True
         return False
 
-    def first_current(self, bus, since, ids=None):
-        """Host time when every servo of `bus` (or `ids`) had been written an output the autopilot
+    def first_current(self, bus, since):
+        """Host time when every servo of `bus` had been written an output that the autopilot
         sent from `since` on; None if not yet."""
-        ids = ids or BUSES[bus]
         times = []
-        for i in ids:
+        for i in BUSES[bus]:
             wanted = self.autopilot.current_since(i, since)
             hit = next((t for t, j, g in self.sims[bus].goal_writes(since) if j == i
                         and any(abs(g - a) <= TOLERANCE_CENTI for a in wanted)), None)
@@ -704,19 +712,35 @@ class Board:
             times.append(hit)
         return max(times)
 
-    def last_packet_before_gap(self, bus, since, gap_s):
-        """The last packet of the first silence on `bus` longer than `gap_s` after `since`."""
-        times = [since] + [t for t, _ in self.sims[bus].packets if t >= since]
+    def first_current_after(self, bus, since):
+        """Host time when every servo of `bus` had been written, after `since`, a value that was
+        the autopilot's current output when it was written; None if not yet."""
+        times = []
+        for i in BUSES[bus]:
+            hit = next((t for t, j, g in self.sims[bus].goal_writes(since) if j == i and t > since
+                        and self.is_current(i, t, g)), None)
+            if hit is None:
+                return None
+            times.append(hit)
+        return max(times)
+
+    def silence(self, bus, since, until=float("inf")):
+        """The first silence on `bus` longer than SILENCE_S that begins between `since` and
+        `until`: (last packet before it, first packet after it or None while it lasts)."""
+        times = [t for t, _ in self.sims[bus].packets if t >= since - SILENCE_S]
         for a, b in zip(times, times[1:]):
-            if b - a > gap_s:
+            if b - a > SILENCE_S and since <= a <= until:
                 return a, b
+        if times and since <= times[-1] <= until and time.time() - times[-1] > SILENCE_S:
+            return times[-1], None
         return None
 
     def measure(self, name, trigger, runs, timeout=120):
-        """Trigger a fault `runs` times. Each time: seconds from the buses falling silent (the
-        fault, to within one poll of the bus) to both buses carrying the autopilot's current
-        outputs again; also from the host's request (which adds the board's ~0.1–1 s to start the
-        request under TCG)."""
+        """Trigger a fault `runs` times. Each time: seconds from the fault to both buses carrying
+        the autopilot's current outputs again. The fault's instant is when the bus on the USB
+        adapter, which the bridge talks on every ~10 ms, fell silent; the autopilot moves to new
+        outputs once the board has carried the request out, so only a bridge started after the
+        fault can write them."""
         r = self.report
         results = []
         with r.phase(f"fault: {name} ×{runs}"):
@@ -725,50 +749,47 @@ class Board:
                     r.note(f"{name} run {run + 1}: the bridge did not settle first")
                     results.append(None)
                     continue
-                status, t_request = trigger()
-                # Outputs the bridge never saw before the fault: after it, they must be written.
-                self.autopilot.new_step()
+                status, t_request, t_done = trigger()
+                t_step = self.autopilot.new_step()
                 if status != 0:
                     r.note(f"{name} run {run + 1}: the board could not signal the bridge (exit {status})")
                     results.append(None)
                     continue
                 deadline = time.monotonic() + timeout
-                recovered, gaps = {}, {}
+                quiet, recovered = None, {}
                 while time.monotonic() < deadline and len(recovered) < len(BUSES):
                     time.sleep(0.5)
                     self.poll_sims()
+                    quiet = quiet or self.silence("usb", t_request - 0.1, t_done + 0.1)
                     for bus in BUSES:
-                        if bus in recovered:
-                            continue
-                        gap = self.last_packet_before_gap(bus, t_request - 0.05, SILENCE_S)
-                        if gap:
-                            gaps[bus] = gap
-                            hit = self.first_current(bus, gap[1] - 1e-6)
-                            if hit:
-                                recovered[bus] = hit
-                if len(recovered) < len(BUSES):
-                    r.note(f"{name} run {run + 1}: no recovery within {timeout} s (silences {gaps})")
+                        hit = self.first_current(bus, t_step)
+                        if hit and bus not in recovered:
+                            recovered[bus] = hit
+                quiet = self.silence("usb", t_request - 0.1, t_done + 0.1) or quiet
+                if not quiet or len(recovered) < len(BUSES):
+                    r.note(f"{name} run {run + 1}: " + ("the bus never fell silent" if not quiet else
+                           f"no recovery within {timeout} s (back: {sorted(recovered)})"))
                     results.append(None)
                     continue
-                silent = min(g[0] for g in gaps.values())
                 back = max(recovered.values())
-                results.append(back - silent)
+                results.append(back - quiet[0])
                 bad = self.audit(t_request, back)
                 self.foreign_moves.extend(bad)
-                r.note(f"{name} run {run + 1}: {back - silent:.2f} s from silence to current outputs on both buses "
-                       f"(uart {recovered['uart'] - gaps['uart'][0]:.2f} s, usb {recovered['usb'] - gaps['usb'][0]:.2f} s; "
-                       f"{back - t_request:.2f} s from the host's request); other moves: {len(bad)}")
+                r.note(f"{name} run {run + 1}: {back - quiet[0]:.2f} s from the silence to the current outputs "
+                       f"on both buses (uart {recovered['uart'] - quiet[0]:.2f} s, usb {recovered['usb'] - quiet[0]:.2f} s; "
+                       f"usb silent for {(quiet[1] or back) - quiet[0]:.2f} s; {back - t_request:.2f} s from the host's request); "
+                       f"other moves: {len(bad)}")
         good = [s for s in results if s is not None]
         figures = ", ".join("—" if s is None else f"{s:.2f}" for s in results)
         r.check(f"recovery after {name}", len(good) == runs,
-                f"{figures} s (median {statistics.median(good):.2f} s), silence → current outputs on both buses"
+                f"{figures} s (median {statistics.median(good):.2f} s), fault → current outputs on both buses"
                 if good else f"no recovery ({figures})")
         return results
 
     def measure_hang(self, bus, after_s, cycles, timeout=180):
-        """With the fault switch set, the bus thread hangs `after_s` after every start: each hang
-        and the watchdog's restart is a run. Seconds from the bus's last packet (the hang) to its
-        servos' current outputs again."""
+        """With the fault switch set, the bus thread hangs `after_s` after every start, and the
+        watchdog restarts the service: each hang is a run. Seconds from the bus falling silent
+        (the hang) to its servos carrying the autopilot's current outputs again."""
         r = self.report
         results = []
         with r.phase(f"fault: hung bus thread ×{cycles}"):
@@ -777,31 +798,35 @@ class Board:
             if status != 0:
                 r.check("recovery after a hung bus thread", False, "the drop-in could not be applied")
                 return
-            since = t0
+            since, stepped = t0, None
             deadline = time.monotonic() + timeout
             while len(results) < cycles and time.monotonic() < deadline:
                 time.sleep(0.5)
                 self.poll_sims()
-                gap = self.last_packet_before_gap(bus, since + after_s * 0.5, SILENCE_S)
-                if not gap:
+                quiet = self.silence(bus, since)
+                if not quiet:
                     continue
-                hit = self.first_current(bus, gap[1] - 1e-6)
+                if stepped != quiet[0]:
+                    # New outputs while it hangs: the restarted bridge has to write them.
+                    self.autopilot.new_step()
+                    stepped = quiet[0]
+                if quiet[1] is None:
+                    continue
+                hit = self.first_current_after(bus, quiet[1] - 1e-6)
                 if not hit:
                     continue
-                results.append(hit - gap[0])
-                self.autopilot.new_step()
-                r.note(f"hung {bus} thread, run {len(results)}: silent from "
-                       f"{gap[0] - since:.1f} s after the start, outputs again {hit - gap[0]:.2f} s later")
+                results.append(hit - quiet[0])
+                r.note(f"hung {bus} thread, run {len(results)}: silent {quiet[0] - since:.1f} s after the "
+                       f"last start or recovery, current outputs again {hit - quiet[0]:.2f} s later")
                 since = hit
             t_end = time.time()
             self.guest.run("hang", "off")
         bad = self.audit(t0, t_end)
         self.foreign_moves.extend(bad)
-        ok = len(results) == cycles
         figures = ", ".join(f"{s:.2f}" for s in results)
-        r.check("recovery after a hung bus thread", ok,
-                (f"{figures} s (median {statistics.median(results):.2f} s)" if results else "no recovery")
-                + f"; {len(bad)} other moves in between")
+        r.check("recovery after a hung bus thread", len(results) == cycles,
+                (f"{figures} s (median {statistics.median(results):.2f} s), hang → current outputs on bus {bus}"
+                 if results else "no recovery") + f"; {len(bad)} other moves in between")
 
     def faults(self):
         r = self.report
@@ -828,7 +853,7 @@ class Board:
     def kill(self, signal):
         rid, sent = self.guest.send("kill", signal)
         status, lines = self.guest.wait(rid, 60)
-        return status, sent
+        return status, sent, time.time()
 
     def audit(self, since=0.0, until=float("inf")):
         """Goal writes that moved a servo to something the autopilot was not sending."""
