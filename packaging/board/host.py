@@ -724,10 +724,12 @@ class Board:
             times.append(hit)
         return max(times)
 
-    def silence(self, bus, since, until=float("inf")):
+    def silence(self, bus, since, until=float("inf"), polls_only=False):
         """The first silence on `bus` longer than SILENCE_S that begins between `since` and
-        `until`: (last packet before it, first packet after it or None while it lasts)."""
-        times = [t for t, _ in self.sims[bus].packets if t >= since - SILENCE_S]
+        `until`: (last packet before it, first packet after it or None while it lasts). With
+        `polls_only`, goal writes do not break a silence."""
+        times = [t for t, goals in self.sims[bus].packets
+                 if t >= since - SILENCE_S and not (polls_only and goals)]
         for a, b in zip(times, times[1:]):
             if b - a > SILENCE_S and since <= a <= until:
                 return a, b
@@ -787,37 +789,39 @@ class Board:
         return results
 
     def measure_hang(self, bus, after_s, cycles, timeout=180):
-        """With the fault switch set, the bus thread hangs `after_s` after every start, and the
-        watchdog restarts the service: each hang is a run. Seconds from the bus falling silent
-        (the hang) to its servos carrying the autopilot's current outputs again."""
+        """With the fault switch set, the bus thread hangs `after_s` after every start and the
+        watchdog restarts the service: each hang is a run. The hang is when the bus's polls
+        stop (goal writes may go on: they are not the bus thread's alone); the restart when
+        they start again. A run's figure: seconds from the hang to the restarted bridge's first
+        goal writes of the autopilot's current outputs on every servo of the bus."""
         r = self.report
-        results = []
+        results, restarts, during = [], [], []
         with r.phase(f"fault: hung bus thread ×{cycles}"):
             status, lines = self.guest.run("hang", f"{bus}:{after_s}")
             t0 = time.time()
             if status != 0:
                 r.check("recovery after a hung bus thread", False, "the drop-in could not be applied")
                 return
-            since, stepped = t0, None
+            since = t0
             deadline = time.monotonic() + timeout
             while len(results) < cycles and time.monotonic() < deadline:
                 time.sleep(0.5)
                 self.poll_sims()
-                quiet = self.silence(bus, since)
-                if not quiet:
-                    continue
-                if stepped != quiet[0]:
-                    # New outputs while it hangs: the restarted bridge has to write them.
-                    self.autopilot.new_step()
-                    stepped = quiet[0]
-                if quiet[1] is None:
+                quiet = self.silence(bus, since, polls_only=True)
+                if not quiet or quiet[1] is None:
                     continue
                 hit = self.first_current_after(bus, quiet[1] - 1e-6)
                 if not hit:
                     continue
+                hung = [(t, i, g) for t, i, g in self.sims[bus].goal_writes(quiet[0] + 1e-6, quiet[1] - 1e-6)]
+                kept = sum(self.is_current(i, t, g) for t, i, g in hung)
                 results.append(hit - quiet[0])
-                r.note(f"hung {bus} thread, run {len(results)}: silent {quiet[0] - since:.1f} s after the "
-                       f"last start or recovery, current outputs again {hit - quiet[0]:.2f} s later")
+                restarts.append(quiet[1] - quiet[0])
+                during.append((len(hung), kept))
+                r.note(f"hung {bus} thread, run {len(results)}: polls stopped {quiet[0] - since:.1f} s after the "
+                       f"last start, again {quiet[1] - quiet[0]:.2f} s later (the restarted bridge), its current "
+                       f"outputs {hit - quiet[0]:.2f} s after the hang; meanwhile {len(hung)} goal writes, "
+                       f"{kept} of them current")
                 since = hit
             t_end = time.time()
             self.guest.run("hang", "off")
@@ -825,8 +829,11 @@ class Board:
         self.foreign_moves.extend(bad)
         figures = ", ".join(f"{s:.2f}" for s in results)
         r.check("recovery after a hung bus thread", len(results) == cycles,
-                (f"{figures} s (median {statistics.median(results):.2f} s), hang → current outputs on bus {bus}"
-                 if results else "no recovery") + f"; {len(bad)} other moves in between")
+                (f"{figures} s (median {statistics.median(results):.2f} s), hang → the restarted bridge's "
+                 f"current outputs on bus {bus}; polls back after "
+                 f"{', '.join(f'{x:.2f}' for x in restarts)} s; goal writes while hung (current/all): "
+                 f"{', '.join(f'{k}/{n}' for n, k in during)}" if results else "no recovery")
+                + f"; {len(bad)} other moves in between")
 
     def faults(self):
         r = self.report
