@@ -1,18 +1,24 @@
 //! The flight record format: every record kind round-trips through the recorder and the
-//! reader, and a damaged file reads back everything before the damage, with a note.
+//! reader, a damaged file reads back everything before the damage, with a note, and the files
+//! earlier format versions wrote (tests/fixtures/records) still read as they were written.
 
 mod tempdir;
 
 use lj9da_bridge::bus::{Goal, Health};
 use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Motion, Ms10, Mv10, ReplyFlags, Telemetry};
+use lj9da_bridge::record::csv::CSV_HEADER;
 use lj9da_bridge::record::format::{
     HeaderError, MAX_EVENT_TEXT, RecordHeader, RecordServo, encode_header, encode_record,
 };
+use lj9da_bridge::record::summary;
 use lj9da_bridge::record::{
     Record, RecordBody, RecordError, RecordLimits, Recorder, Recording, read_record,
 };
 use proptest::prelude::*;
+use std::collections::BTreeMap;
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
+use std::process::Command;
 use std::time::Duration;
 use tempdir::TempDir;
 
@@ -367,40 +373,337 @@ fn only_an_unreadable_header_is_an_error() {
     assert!(matches!(e, RecordError::Io { .. }));
 }
 
+/// A flight record written by the `sitl` of one format version (how each was made:
+/// tests/fixtures/records/README.md), and how many records of each kind that version wrote
+/// into it; a kind it did not have is not listed.
+struct Fixture {
+    minor: u16,
+    kinds: &'static [(&'static str, usize)],
+}
+
+/// 1.0: no position and no replies records; 1.1: position records, no replies; 1.2: replies
+/// records too; 1.3: motion records (a position with its current) in place of position ones.
+const FIXTURES: [Fixture; 4] = [
+    Fixture {
+        minor: 0,
+        kinds: &[
+            ("goal", 361),
+            ("telemetry", 175),
+            ("health", 50),
+            ("event", 50),
+            ("end", 1),
+        ],
+    },
+    Fixture {
+        minor: 1,
+        kinds: &[
+            ("goal", 368),
+            ("telemetry", 95),
+            ("position", 390),
+            ("health", 21),
+            ("event", 20),
+            ("end", 1),
+        ],
+    },
+    Fixture {
+        minor: 2,
+        kinds: &[
+            ("goal", 384),
+            ("telemetry", 161),
+            ("position", 346),
+            ("replies", 12),
+            ("health", 8),
+            ("event", 4),
+            ("end", 1),
+        ],
+    },
+    Fixture {
+        minor: 3,
+        kinds: &[
+            ("goal", 410),
+            ("telemetry", 176),
+            ("motion", 357),
+            ("replies", 12),
+            ("health", 8),
+            ("event", 4),
+            ("end", 1),
+        ],
+    },
+];
+
+/// Every kind's name, as `RecordBody::kind_name` gives it.
+const KIND_NAMES: [&str; 9] = [
+    "goal",
+    "telemetry",
+    "position",
+    "motion",
+    "replies",
+    "health",
+    "event",
+    "dropped",
+    "end",
+];
+
+impl Fixture {
+    fn path(&self) -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/records")
+            .join(format!("format-1.{}.lj9rec", self.minor))
+    }
+
+    /// Records of every kind, 0 for the kinds the version did not write.
+    fn expected_kinds(&self) -> BTreeMap<&'static str, usize> {
+        KIND_NAMES
+            .iter()
+            .map(|&name| {
+                let n = self
+                    .kinds
+                    .iter()
+                    .find(|(k, _)| *k == name)
+                    .map_or(0, |k| k.1);
+                (name, n)
+            })
+            .collect()
+    }
+
+    fn records(&self) -> usize {
+        self.kinds.iter().map(|k| k.1).sum()
+    }
+}
+
+/// The servo table of `sitl`'s built-in airframe (mappings/sitl-default.toml), the same in
+/// every version.
+fn sitl_servos() -> Vec<RecordServo> {
+    vec![
+        RecordServo::new("aileron_left", "sim", 1, 1),
+        RecordServo::new("aileron_right", "sim", 2, 2),
+        RecordServo::new("elevator", "sim", 3, 3),
+        RecordServo::new("rudder", "sim", 4, 4),
+    ]
+}
+
+/// A position or a goal within the stroke, ±25 mm.
+fn assert_in_stroke(position: MmCenti, what: &str) {
+    assert!(position.mm().abs() <= 25.0, "{what}: {} mm", position.mm());
+}
+
 #[test]
-fn files_of_formats_1_0_to_1_2_still_read() {
-    // The kinds each older version had: 1.0 no position or replies records, 1.1 no replies,
-    // and none of them motion records.
-    let v1_2: Vec<Record> = every_kind()
-        .into_iter()
-        .filter(|r| !matches!(r.body, RecordBody::Motion { .. }))
-        .collect();
-    let older: Vec<Record> = v1_2
-        .iter()
-        .filter(|r| !matches!(r.body, RecordBody::Replies { .. }))
-        .cloned()
-        .collect();
-    for (minor, records) in [
-        (
-            0u16,
-            older
-                .iter()
-                .filter(|r| !matches!(r.body, RecordBody::Position { .. }))
-                .cloned()
-                .collect::<Vec<_>>(),
-        ),
-        (1, older.clone()),
-        (2, v1_2),
-    ] {
-        let mut header = RecordHeader::new(1_763_769_599_000_000_000, servos());
-        header.version = (1, minor);
-        let mut bytes = encode_header(&header);
-        for r in &records {
-            encode_record(r, &mut bytes);
+fn files_written_by_formats_1_0_to_1_3_read_back_as_they_were_written() {
+    for fixture in &FIXTURES {
+        let minor = fixture.minor;
+        let path = fixture.path();
+        let rec = read_record(&path).unwrap();
+        let at = |i: usize| format!("format 1.{minor}, record {i}");
+
+        assert_eq!(rec.header.version, (1, minor), "{}", path.display());
+        assert!(rec.closed, "format 1.{minor}: not closed");
+        assert!(rec.notes.is_empty(), "format 1.{minor}: {:?}", rec.notes);
+        assert_eq!(rec.header.part, 0);
+        assert!(
+            rec.header.software.starts_with("lj9da-bridge "),
+            "{}",
+            rec.header.software
+        );
+        assert_eq!(rec.header.servos, sitl_servos(), "format 1.{minor}");
+        assert_eq!(rec.records.len(), fixture.records(), "format 1.{minor}");
+        assert_eq!(
+            rec.records.last().unwrap().body,
+            RecordBody::End { continued: false }
+        );
+
+        let mut kinds: BTreeMap<&str, usize> = KIND_NAMES.iter().map(|&k| (k, 0)).collect();
+        let mut samples = [0usize; 4];
+        let mut motion_current = false;
+        let mut answered = [0u32; 4];
+        for (i, r) in rec.records.iter().enumerate() {
+            *kinds.get_mut(r.body.kind_name()).unwrap() += 1;
+            assert!(r.t_us < 10_000_000, "{}: at {} s", at(i), r.t_s());
+            if let Some(servo) = r.body.servo() {
+                assert!(servo < 4, "{}: servo {servo}", at(i));
+            }
+            match &r.body {
+                RecordBody::Goal { goal, .. } => {
+                    if let Goal::Position(p) = goal {
+                        assert_in_stroke(*p, &at(i));
+                    }
+                }
+                RecordBody::Telemetry {
+                    servo,
+                    telemetry: t,
+                    flags,
+                } => {
+                    samples[usize::from(*servo)] += 1;
+                    assert_in_stroke(t.present_position, &at(i));
+                    let volts = t.present_voltage.volts();
+                    assert!((11.5..=12.5).contains(&volts), "{}: {volts} V", at(i));
+                    let celsius = t.present_temperature.0;
+                    assert!((0..=80).contains(&celsius), "{}: {celsius} °C", at(i));
+                    let amps = t.present_load.amps();
+                    assert!((0.0..=5.0).contains(&amps), "{}: {amps} A", at(i));
+                    assert_eq!(flags.meaningful(), ReplyFlags(0), "{}", at(i));
+                }
+                RecordBody::Position {
+                    position, flags, ..
+                } => {
+                    assert_in_stroke(*position, &at(i));
+                    assert_eq!(flags.meaningful(), ReplyFlags(0), "{}", at(i));
+                }
+                RecordBody::Motion {
+                    motion: m, flags, ..
+                } => {
+                    assert_in_stroke(m.present_position, &at(i));
+                    let amps = m.present_load.amps();
+                    assert!((0.0..=5.0).contains(&amps), "{}: {amps} A", at(i));
+                    motion_current |= m.present_load.0 > 0;
+                    assert_eq!(flags.meaningful(), ReplyFlags(0), "{}", at(i));
+                }
+                RecordBody::Replies {
+                    servo,
+                    answered: good,
+                    missed,
+                } => {
+                    let last = &mut answered[usize::from(*servo)];
+                    assert!(*good >= *last, "{}: the count went down", at(i));
+                    assert!(*missed <= *good, "{}: {good} good, {missed} bad", at(i));
+                    *last = *good;
+                }
+                RecordBody::Health { .. }
+                | RecordBody::Event { .. }
+                | RecordBody::Dropped { .. }
+                | RecordBody::End { .. } => {}
+            }
         }
-        let rec = Recording::from_bytes(&bytes).unwrap();
-        assert_eq!(rec.header.version, (1, minor));
-        assert_eq!(rec.records, records, "format 1.{minor}");
+        assert_eq!(kinds, fixture.expected_kinds(), "format 1.{minor}");
+        assert!(
+            samples.iter().all(|&n| n > 0),
+            "format 1.{minor}: telemetry samples per servo {samples:?}"
+        );
+        assert_eq!(
+            motion_current,
+            minor >= 3,
+            "format 1.{minor}: motion current"
+        );
+        if minor >= 2 {
+            assert!(
+                answered.iter().all(|&n| n > 0),
+                "format 1.{minor}: good replies per servo {answered:?}"
+            );
+        }
+
+        let s = summary(&rec);
+        assert!(s.closed);
+        assert_eq!(s.records, fixture.records());
+        assert_eq!(s.dropped, 0);
+        assert!(
+            (2.5..=4.0).contains(&s.duration_s),
+            "format 1.{minor}: {} s",
+            s.duration_s
+        );
+        assert_eq!(s.servos.len(), 4);
+        for (servo, n) in s.servos.iter().zip(samples) {
+            assert_eq!(
+                servo.samples, n as u64,
+                "format 1.{minor}: {}",
+                servo.servo.name
+            );
+            let voltage = servo.voltage_v.unwrap();
+            assert!(
+                (11.5..=12.5).contains(&voltage.mean),
+                "format 1.{minor}: {}: {voltage:?}",
+                servo.servo.name
+            );
+            let temperature = servo.temperature_c.unwrap();
+            assert!(
+                temperature.min >= 0.0 && temperature.max <= 80.0,
+                "format 1.{minor}: {}: {temperature:?}",
+                servo.servo.name
+            );
+            assert!(servo.goals > 0, "format 1.{minor}: {}", servo.servo.name);
+            assert!(
+                servo.max_error_mm.is_some_and(|e| e <= 50.0),
+                "format 1.{minor}: {}: {:?}",
+                servo.servo.name,
+                servo.max_error_mm
+            );
+            assert_eq!(servo.alarms(), 0, "format 1.{minor}: {}", servo.servo.name);
+        }
+    }
+}
+
+/// Run `lj9da-bridge record …`; returns its stdout, after checking it succeeded without notes.
+fn record_cli(args: &[&OsStr]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
+        .arg("record")
+        .args(args)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "record {args:?}: {stderr}");
+    assert!(stderr.is_empty(), "record {args:?}: {stderr}");
+    String::from_utf8(out.stdout).unwrap()
+}
+
+#[test]
+fn record_summary_csv_and_plot_take_the_file_of_every_format() {
+    let names: Vec<String> = sitl_servos().into_iter().map(|s| s.name).collect();
+    for fixture in &FIXTURES {
+        let minor = fixture.minor;
+        let path = fixture.path();
+        let dir = TempDir::new("fixture");
+
+        let text = record_cli(&["summary".as_ref(), path.as_os_str()]);
+        assert!(
+            text.contains(&format!("{} records, closed cleanly", fixture.records())),
+            "format 1.{minor}:\n{text}"
+        );
+        for name in &names {
+            assert!(text.contains(name.as_str()), "format 1.{minor}:\n{text}");
+        }
+
+        let csv_path = dir.path().join("run.csv");
+        record_cli(&[
+            "csv".as_ref(),
+            path.as_os_str(),
+            "--out".as_ref(),
+            csv_path.as_os_str(),
+        ]);
+        let csv = std::fs::read_to_string(&csv_path).unwrap();
+        let mut lines = csv.lines();
+        assert_eq!(lines.next(), Some(CSV_HEADER));
+        let mut kinds: BTreeMap<&str, usize> = KIND_NAMES.iter().map(|&k| (k, 0)).collect();
+        for line in lines {
+            // No servo name holds a comma: the third field is the kind.
+            let kind = line.split(',').nth(2).unwrap();
+            *kinds
+                .get_mut(kind)
+                .unwrap_or_else(|| panic!("format 1.{minor}: kind {kind:?} in {line}")) += 1;
+        }
+        assert_eq!(kinds, fixture.expected_kinds(), "format 1.{minor}");
+
+        let plots = dir.path().join("plots");
+        let text = record_cli(&[
+            "plot".as_ref(),
+            path.as_os_str(),
+            "--out".as_ref(),
+            plots.as_os_str(),
+        ]);
+        let stem = format!("format-1.{minor}");
+        let mut expected: Vec<PathBuf> = names
+            .iter()
+            .map(|name| plots.join(format!("{stem}-{name}.svg")))
+            .collect();
+        expected.push(plots.join(format!("{stem}.html")));
+        let listed: Vec<PathBuf> = text.lines().map(PathBuf::from).collect();
+        assert_eq!(listed, expected, "format 1.{minor}");
+        for (file, name) in expected.iter().zip(&names) {
+            let svg = std::fs::read_to_string(file).unwrap();
+            assert!(svg.contains("<svg"), "{}", file.display());
+            assert!(svg.contains(name.as_str()), "{}", file.display());
+        }
+        let page = std::fs::read_to_string(expected.last().unwrap()).unwrap();
+        for name in &names {
+            assert!(page.contains(name.as_str()), "format 1.{minor}: page");
+        }
     }
 }
 
