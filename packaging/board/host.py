@@ -138,6 +138,7 @@ class Guest:
         self.pending = ""
         self.blocks = {}
         self.ready_at = None
+        self.current = None  # the request whose output is being read
         self.next_id = 1
         deadline = time.monotonic() + 30
         while True:
@@ -173,7 +174,7 @@ class Guest:
             _, rid, status = line.split()
             self.blocks[int(rid)]["status"] = int(status)
             self.current = None
-        elif getattr(self, "current", None) is not None:
+        elif self.current is not None:
             self.blocks[self.current]["lines"].append(line)
 
     def wait_ready(self, timeout):
@@ -464,7 +465,6 @@ class Board:
         self.autopilot = Autopilot(args.autopilot_port)
         self.gcs = GroundStation(args.gcs_port)
         self.guest = None
-        self.running_since = None
 
     def poll_sims(self):
         for sim in self.sims.values():
@@ -525,7 +525,6 @@ class Board:
             status, lines = self.guest.run("enable")
             ok = r.check("systemctl enable --now", status == 0,
                          f"exit {status}, main PID {values(lines).get('MAIN_PID', '?')}")
-            self.running_since = time.time()
             return ok
 
     def drive(self, seconds):
@@ -776,7 +775,6 @@ class Board:
                 back = max(recovered.values())
                 results.append(back - quiet[0])
                 bad = self.audit(t_request, back)
-                self.foreign_moves.extend(bad)
                 r.note(f"{name} run {run + 1}: {back - quiet[0]:.2f} s from the silence to the current outputs "
                        f"on both buses (uart {recovered['uart'] - quiet[0]:.2f} s, usb {recovered['usb'] - quiet[0]:.2f} s; "
                        f"usb silent for {(quiet[1] or back) - quiet[0]:.2f} s; {back - t_request:.2f} s from the host's request); "
@@ -826,7 +824,6 @@ class Board:
             t_end = time.time()
             self.guest.run("hang", "off")
         bad = self.audit(t0, t_end)
-        self.foreign_moves.extend(bad)
         figures = ", ".join(f"{s:.2f}" for s in results)
         r.check("recovery after a hung bus thread", len(results) == cycles,
                 (f"{figures} s (median {statistics.median(results):.2f} s), hang → the restarted bridge's "
@@ -837,7 +834,6 @@ class Board:
 
     def faults(self):
         r = self.report
-        self.foreign_moves = []
         v, watchdog, hang_switch = self.features()
         runs = self.args.fault_runs
         if v.get("Restart") in ("on-failure", "always", "on-abnormal", "on-abort"):
