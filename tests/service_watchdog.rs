@@ -51,6 +51,8 @@ impl Service {
             format!(
                 r#"[mavlink]
 connection = "udpin:127.0.0.1:{port}"
+# The autopilot's id known beforehand: it is taken as the autopilot before it says anything.
+system_id = 1
 
 [record]
 enabled = false
@@ -319,7 +321,7 @@ fn a_start_that_a_bus_thread_holds_up_says_which_and_is_ready_without_pings() {
 fn a_bridge_that_hears_no_autopilot_says_so_and_where_it_listens() {
     let started = Instant::now();
     let mut bridge = Service::start("service-no-autopilot", &[]);
-    let note = "no autopilot heard for";
+    let note = "no outputs heard from the autopilot for";
     assert!(
         bridge.listen_until(Duration::from_secs(10) + PATIENCE, |h| log_has(h, note)
             .is_some()),

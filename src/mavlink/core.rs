@@ -215,6 +215,11 @@ impl BridgeCore {
         self.autopilot
     }
 
+    /// Whether an output message of the autopilot's has been obeyed since the start.
+    pub fn outputs_heard(&self) -> bool {
+        self.last_output_at.is_some()
+    }
+
     /// Some servo is in failsafe (the whole stream is missing, or its channel is).
     pub fn in_failsafe(&self) -> bool {
         self.servos.iter().any(|s| s.failsafe)

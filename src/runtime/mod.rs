@@ -462,7 +462,8 @@ struct Bridge {
     texts: std::collections::VecDeque<String>,
     /// systemd's watchdog, once the bridge told it that it is ready.
     watchdog: Option<Watchdog>,
-    /// Until an autopilot is found: since when the bridge waits, and when it next says so.
+    /// Until the autopilot's first output message: since when the bridge waits, and when it
+    /// next says so.
     no_autopilot: Option<(Instant, Instant, std::time::Duration)>,
 }
 
@@ -683,12 +684,12 @@ impl Bridge {
     }
 
     /// Say, 10 s after the start and then every doubled interval up to a minute, that no
-    /// autopilot has been heard yet, and where the bridge listens.
+    /// output message of the autopilot's has been heard yet, and where the bridge listens.
     fn note_no_autopilot(&mut self) {
         let Some((since, next, every)) = self.no_autopilot else {
             return;
         };
-        if self.core.autopilot().is_some() {
+        if self.core.outputs_heard() {
             self.no_autopilot = None;
             return;
         }
@@ -697,7 +698,7 @@ impl Bridge {
             return;
         }
         tracing::warn!(
-            "no autopilot heard for {} s on {}: the buses run meanwhile; \
+            "no outputs heard from the autopilot for {} s on {}: the buses run meanwhile; \
              check that the autopilot sends MAVLink there (ArduPilot: SERIALn_PROTOCOL = 2 on that \
              port; PX4: MAV_n_CONFIG), and that its system and component IDs are the mapping file's",
             now.duration_since(since).as_secs(),
