@@ -795,16 +795,23 @@ class Board:
         r = self.report
         results, restarts, during = [], [], []
         with r.phase(f"fault: hung bus thread ×{cycles}"):
-            status, lines = self.guest.run("hang", f"{bus}:{after_s}")
-            t0 = time.time()
+            rid, t0 = self.guest.send("hang", f"{bus}:{after_s}")
+            status, lines = self.guest.wait(rid, 320)
             if status != 0:
                 r.check("recovery after a hung bus thread", False, "the drop-in could not be applied")
                 return
-            since = t0
             deadline = time.monotonic() + timeout
+            # The restart that applies the drop-in: the first silence after the request. Each
+            # hang is looked for from half its delay after the bridge (re)started talking.
+            started, since = None, None
             while len(results) < cycles and time.monotonic() < deadline:
                 time.sleep(0.5)
                 self.poll_sims()
+                if started is None:
+                    quiet = self.silence(bus, t0 - 0.1, polls_only=True)
+                    if quiet and quiet[1] is not None:
+                        started, since = quiet[1], quiet[1] + after_s / 2
+                    continue
                 quiet = self.silence(bus, since, polls_only=True)
                 if not quiet or quiet[1] is None:
                     continue
@@ -816,11 +823,11 @@ class Board:
                 results.append(hit - quiet[0])
                 restarts.append(quiet[1] - quiet[0])
                 during.append((len(hung), kept))
-                r.note(f"hung {bus} thread, run {len(results)}: polls stopped {quiet[0] - since:.1f} s after the "
-                       f"last start, again {quiet[1] - quiet[0]:.2f} s later (the restarted bridge), its current "
-                       f"outputs {hit - quiet[0]:.2f} s after the hang; meanwhile {len(hung)} goal writes, "
+                r.note(f"hung {bus} thread, run {len(results)}: polls stopped {quiet[0] - started:.1f} s after the "
+                       f"bridge started polling, again {quiet[1] - quiet[0]:.2f} s later (the restarted bridge), its "
+                       f"current outputs {hit - quiet[0]:.2f} s after the hang; meanwhile {len(hung)} goal writes, "
                        f"{kept} of them current")
-                since = hit
+                started, since = quiet[1], quiet[1] + after_s / 2
             t_end = time.time()
             self.guest.run("hang", "off")
         bad = self.audit(t0, t_end)
