@@ -408,20 +408,27 @@ async fn own_frames_count_without_gaps_and_the_relayed_heartbeat_keeps_its_numbe
     chain.stop().await;
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_burst_of_a_thousand_param_sets_writes_the_file_a_bounded_number_of_times() {
-    let text = mapping(false, "burst");
+/// A chain whose parameters are saved into a mapping file of its own (`name` in its path),
+/// with the autopilot announced; that file, and the autopilot (kept for the test's length).
+async fn chain_with_mapping_file(name: &str) -> (Chain, PathBuf, Peer) {
+    let text = mapping(false, name);
     let file = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join(format!("peers-burst-{}.toml", std::process::id()));
+        .join(format!("peers-{name}-{}.toml", std::process::id()));
     std::fs::write(&file, &text).unwrap();
     let opts = ChainOptions {
         mapping_file: Some(file.clone()),
         ..ChainOptions::default()
     };
     let chain = Chain::start_opts(&text, opts).await;
-    let port = chain.autopilot_port;
     let mut ap = Peer::new(AP, false).await;
-    ap.announce(port, &chain).await;
+    ap.announce(chain.autopilot_port, &chain).await;
+    (chain, file, ap)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_of_a_thousand_param_sets_writes_the_file_a_bounded_number_of_times() {
+    let (chain, file, _ap) = chain_with_mapping_file("burst").await;
+    let port = chain.autopilot_port;
     let set = |name: &str, value: f32| {
         MavMessage::PARAM_SET(PARAM_SET_DATA {
             param_value: value,
@@ -519,18 +526,8 @@ async fn a_burst_of_a_thousand_param_sets_writes_the_file_a_bounded_number_of_ti
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sets_that_come_while_a_change_is_written_leave_the_latest_value_in_the_file() {
-    let text = mapping(false, "latest");
-    let file = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join(format!("peers-latest-{}.toml", std::process::id()));
-    std::fs::write(&file, &text).unwrap();
-    let opts = ChainOptions {
-        mapping_file: Some(file.clone()),
-        ..ChainOptions::default()
-    };
-    let chain = Chain::start_opts(&text, opts).await;
+    let (chain, file, _ap) = chain_with_mapping_file("latest").await;
     let port = chain.autopilot_port;
-    let mut ap = Peer::new(AP, false).await;
-    ap.announce(port, &chain).await;
     let set = |value: f32| {
         MavMessage::PARAM_SET(PARAM_SET_DATA {
             param_value: value,
