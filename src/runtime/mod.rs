@@ -503,7 +503,7 @@ impl Bridge {
         for address in &addresses {
             links.push(links::connect(address).await?);
         }
-        tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links set up; waiting for the autopilot's HEARTBEAT");
+        tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links set up; waiting for the autopilot");
         let signing = links::open_signing(&cfg, links.len(), record_dir.as_deref())?;
         let record = record_dir
             .filter(|_| cfg.record.enabled)
