@@ -145,3 +145,43 @@ fn sitl_on_a_terminal_redraws_its_view_in_place_and_quits_on_q() {
     // The final table is printed after the terminal is given back.
     assert!(out[leave..].contains("aileron_left"));
 }
+
+/// `sitl --config` with a mapping that names no record folder records into the current
+/// folder's `records/`, not beside the mapping (which, for the examples, is the repository).
+#[test]
+fn sitl_with_a_mapping_records_into_the_current_folder_not_beside_the_mapping() {
+    let dir = TempDir::new("sitl-records");
+    let mappings = dir.path().join("mappings");
+    let work = dir.path().join("work");
+    std::fs::create_dir_all(&mappings).unwrap();
+    std::fs::create_dir_all(&work).unwrap();
+    let mapping = mappings.join("px4-vtol.toml");
+    std::fs::copy(
+        concat!(env!("CARGO_MANIFEST_DIR"), "/mappings/px4-vtol.toml"),
+        &mapping,
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
+        .args(["sitl", "--plain", "--seconds", "2", "--config"])
+        .arg(&mapping)
+        .current_dir(&work)
+        .stdin(Stdio::null())
+        .output()
+        .expect("lj9da-bridge sitl runs");
+    assert!(
+        out.status.success(),
+        "{:?}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let records: Vec<_> = std::fs::read_dir(work.join("records"))
+        .expect("records/ in the current folder")
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().extension().is_some_and(|x| x == "lj9rec"))
+        .collect();
+    assert!(!records.is_empty(), "no record file in work/records");
+    assert!(
+        !mappings.join("records").exists(),
+        "sitl wrote records beside the mapping file"
+    );
+}

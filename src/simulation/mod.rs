@@ -155,7 +155,12 @@ pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
             }
         })
     };
-    let record_dir = cfg.record.dir_for(opts.config_path.as_deref());
+    // A mapping that names no record folder records into `records/` of the current folder,
+    // not beside the mapping file: `sitl --config mappings/…` must not write into the examples.
+    let record_dir = match cfg.record.dir {
+        Some(_) => cfg.record.dir_for(opts.config_path.as_deref()),
+        None => PathBuf::from("records"),
+    };
     let run_opts = runtime::RunOptions {
         ports,
         view: Some(view_tx),
