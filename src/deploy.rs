@@ -82,7 +82,7 @@ pub fn systemd_unit(binary: &Path, config: &Path) -> String {
 # Log:     journalctl -u lj9da-bridge -f
 [Unit]
 Description=lj9da-bridge: MAVLink autopilot outputs to Futaba LJ9DA41 RS485 servos
-Documentation=https://github.com/lj9da-bridge/lj9da-bridge
+Documentation=man:lj9da-bridge(1)
 # The MAVLink link may be a network address: start once the network is up.
 Wants=network-online.target
 After=network-online.target

@@ -79,3 +79,66 @@ fn the_package_script_ships_the_files_these_tests_check() {
         assert!(script.contains(file), "build-debs does not use {file}");
     }
 }
+
+/// The unit and the package point only at what exists: the unit's documentation is the man page
+/// the package ships, and no file of the package names a web address of the project's own
+/// (there is none to name; a homepage is given at build time with `DEB_HOMEPAGE`).
+#[test]
+fn the_unit_and_the_package_name_no_address_that_does_not_exist() {
+    let unit = read("packaging/lj9da-bridge.service");
+    let docs: Vec<&str> = unit
+        .lines()
+        .filter_map(|l| l.strip_prefix("Documentation="))
+        .flat_map(str::split_whitespace)
+        .collect();
+    assert!(!docs.is_empty(), "the unit names its documentation");
+    let script = read("packaging/build-debs");
+    for doc in docs {
+        let page = doc
+            .strip_prefix("man:")
+            .unwrap_or_else(|| panic!("{doc}: the unit's documentation is a man page"));
+        let (name, section) = page.trim_end_matches(')').split_once('(').unwrap();
+        let source = format!("packaging/{name}.{section}");
+        assert!(repo(&source).exists(), "{doc}: no {source}");
+        assert!(
+            script.contains(&format!("<{source}")),
+            "build-debs does not ship {source}"
+        );
+    }
+    for file in [
+        "packaging/lj9da-bridge.service",
+        "packaging/build-debs",
+        "packaging/debian/copyright",
+        "Cargo.toml",
+    ] {
+        let text = read(file);
+        for (at, _) in text.match_indices("://") {
+            let url = &text[text[..at].rfind(char::is_whitespace).map_or(0, |i| i + 1)..]
+                .split_whitespace()
+                .next()
+                .unwrap();
+            assert!(
+                url.contains("debian.org"),
+                "{file} names the address {url}, which nothing keeps"
+            );
+        }
+    }
+}
+
+/// The package's Maintainer is whoever builds it, given at build time; a value that is not
+/// "Name <address>" stops the build before anything is compiled.
+#[test]
+fn build_debs_refuses_a_maintainer_that_is_not_name_and_address() {
+    let out = std::process::Command::new("bash")
+        .arg(repo("packaging/build-debs"))
+        .arg("amd64")
+        .env("DEB_MAINTAINER", "nobody")
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("maintainer 'nobody' is not 'Name <address>': set DEB_MAINTAINER"),
+        "{err}"
+    );
+}
