@@ -288,3 +288,75 @@ async fn a_blocked_rod_is_reported_stalled() {
     .await;
     bus.shutdown(ShutdownForce::AsIs).await;
 }
+
+/// One program at a time on a bus, and a refusal that says who has it: a port the bus holds
+/// refuses the commissioning commands and a second bus, and a port another program holds (an
+/// exclusive `flock`, as picocom takes) keeps the bus closed until that program lets go.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_program_on_the_port_is_refused_both_ways() {
+    use std::os::fd::AsRawFd;
+    let ids = [1];
+    let sim = spawn_sim(sim_config(&ids, 115_200));
+    let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
+    every_servo_online(&bus).await;
+    let packets_before = sim.handle().stats().packets_rx;
+    let path = sim.path();
+    let scan = tokio::task::spawn_blocking(move || {
+        std::process::Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
+            .args(["scan", "--ids", "1", "--port"])
+            .arg(path)
+            .output()
+            .unwrap()
+    })
+    .await
+    .unwrap();
+    let err = String::from_utf8_lossy(&scan.stderr);
+    assert_eq!(scan.status.code(), Some(1), "{err}");
+    assert!(err.contains("is in use by another program"), "{err}");
+    assert!(
+        err.contains(&format!("pid {}", std::process::id())),
+        "names the holder: {err}"
+    );
+    // The bus went on serving its servo, and nothing was talked over.
+    wait_status(&bus, "more packets from the bus", |_| {
+        sim.handle().stats().packets_rx > packets_before + 10
+    })
+    .await;
+    let stats = sim.handle().stats();
+    assert_eq!((stats.collisions, stats.bad_sums), (0, 0), "{stats:?}");
+    // A second bridge's bus on the same port stays closed.
+    let second = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
+    let mut second_events = second.events();
+    wait_event(&mut second_events, "second bus refused", |e| {
+        matches!(e, BusEvent::PortLost { reason } if reason.contains("in use by another program"))
+    })
+    .await;
+    second.shutdown(ShutdownForce::AsIs).await;
+    bus.shutdown(ShutdownForce::AsIs).await;
+
+    // Now another program holds the port first.
+    let holder = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(sim.path())
+        .unwrap();
+    // SAFETY: flock on a descriptor this test owns.
+    assert_eq!(
+        unsafe { libc::flock(holder.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) },
+        0
+    );
+    let bus = spawn_bus(bus_config(&ids, BaudRate::B115200), sim.path());
+    let mut events = bus.events();
+    let reason = wait_event(&mut events, "port refused", |e| {
+        matches!(e, BusEvent::PortLost { reason } if reason.contains("in use by another program"))
+    })
+    .await;
+    assert!(!bus.status().port_open, "{reason:?}");
+    drop(holder);
+    wait_event(&mut events, "port open once the holder let go", |e| {
+        *e == BusEvent::PortBack
+    })
+    .await;
+    every_servo_online(&bus).await;
+    bus.shutdown(ShutdownForce::AsIs).await;
+}

@@ -743,8 +743,8 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
     }
 }
 
-/// Open `path` at `baud`, 8N1, no flow control, not exclusive (a pseudo-terminal in tests),
-/// non-blocking: reads return what has arrived, writes never wait; in RS485 mode when the bus
+/// Open `path` at `baud`, 8N1, no flow control, not exclusive for `TIOCEXCL` (a pseudo-terminal
+/// in tests) but refused while another program holds it (see [`crate::serial::lock`]), non-blocking: reads return what has arrived, writes never wait; in RS485 mode when the bus
 /// asks for it (a refusal keeps the port closed). With it, the bus thread's [`ReplyWaiter`] on
 /// the same port.
 fn open_port(
@@ -758,7 +758,10 @@ fn open_port(
         .stop_bits(StopBits::One)
         .flow_control(FlowControl::None)
         .open_native()
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| match crate::serial::lock::refused_on_open(path, &e) {
+            Some(in_use) => in_use.to_string(),
+            None => e.to_string(),
+        })?;
     let _ = native.set_exclusive(false);
     // SAFETY: `into_raw_fd` hands over a valid, open descriptor that nothing else owns or
     // closes any more; the `File` becomes its only owner.

@@ -42,6 +42,8 @@ pub enum LinkError {
         baud: BaudRate,
         source: tokio_serial::Error,
     },
+    #[error(transparent)]
+    InUse(#[from] crate::serial::lock::PortInUse),
     #[error(
         "{path} cannot be used: {source}; {advice}",
         path = path.display(),
@@ -491,11 +493,16 @@ fn open_port(
         .stop_bits(StopBits::One)
         .flow_control(FlowControl::None)
         .open_native_async()
-        .map_err(|source| LinkError::Open {
-            path: path.to_path_buf(),
-            baud,
-            source,
-        })?;
+        .map_err(
+            |source| match crate::serial::lock::refused_on_open(path, &source) {
+                Some(in_use) => LinkError::InUse(in_use),
+                None => LinkError::Open {
+                    path: path.to_path_buf(),
+                    baud,
+                    source,
+                },
+            },
+        )?;
     if let Some(mode) = rs485 {
         // SAFETY: the descriptor belongs to `port`, which outlives the borrow.
         let fd = unsafe { BorrowedFd::borrow_raw(port.as_raw_fd()) };
