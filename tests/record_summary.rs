@@ -647,3 +647,40 @@ fn record_plot_also_writes_the_flights_page() {
     let page = std::fs::read_to_string(out.join("20251122T000000Z.html")).unwrap();
     assert_eq!(count(&page, "<svg data-zoom"), 2);
 }
+
+/// `record summary` and `record trend` fold a servo's records with the same code: on the same
+/// file they agree on every figure they both report.
+#[test]
+fn summary_and_trend_agree_on_the_figures_they_share() {
+    let dir = TempDir::new("summary-trend");
+    let flags: Vec<Record> = flag_records()
+        .into_iter()
+        .map(|(t_us, body)| Record { t_us, body })
+        .collect();
+    for (name, records) in [("synthetic", synthetic_records()), ("flags", flags)] {
+        let mut bytes = encode_header(&RecordHeader::new(
+            1_763_769_600_000_000_000,
+            vec![
+                RecordServo::new("left", "wing", 1, 3),
+                RecordServo::new("right", "wing", 2, 4),
+            ],
+        ));
+        for r in &records {
+            encode_record(r, &mut bytes);
+        }
+        let path = dir.path().join(format!("{name}.lj9rec"));
+        std::fs::write(&path, &bytes).unwrap();
+        let s = &summary(&Recording::from_bytes(&bytes).unwrap()).servos[0];
+        let (t, notes) = lj9da_bridge::record::trend::trend(&[path], &[]);
+        assert!(notes.errors.is_empty(), "{notes:?}");
+        // "right" is never heard from: no flight.
+        assert_eq!(t.servos.len(), 1, "{name}");
+        let f = &t.servos[0].flights[0];
+        assert_eq!(f.alarms, s.alarms(), "{name}");
+        assert_eq!(f.stalled_s, s.stalled_s, "{name}");
+        assert_eq!(f.peak_a, s.peak_current_a(), "{name}");
+        assert_eq!(f.peak_c, s.temperature_c.map(|r| r.max), "{name}");
+        assert_eq!(f.mean_c, s.temperature_c.map(|r| r.mean), "{name}");
+        assert!(f.alarms > 0, "{name}: {f:?}");
+    }
+}

@@ -14,6 +14,9 @@
 //! - [`rotate`]: file names and deleting the oldest files;
 //! - [`feed`]: [`StatusFeed`], bus statuses and events → records;
 //! - [`reader`]: [`read_record`], a file back into a [`Recording`], with notes on damage;
+//! - [`analysis`]: [`analysis::ServoFold`], one servo's records folded into its state and
+//!   counts (alarms, stalled and offline spans, temperature and current), shared by the summary,
+//!   the pictures and the trend;
 //! - [`summary`](mod@summary), [`csv`], [`plot`], [`page`]: what `lj9da-bridge record summary|csv|plot`
 //!   show;
 //! - [`trend`](mod@trend): each servo's wear across flights, what `lj9da-bridge record trend` shows;
@@ -38,6 +41,7 @@
 //! # let _ = stats; Ok(()) }
 //! ```
 
+pub mod analysis;
 pub mod cli;
 mod clock;
 mod crc;

@@ -15,9 +15,9 @@
 //! with a `data-panel` attribute. Long recordings are thinned to the extremes of each pixel
 //! column, so peaks survive and files stay small.
 
+use super::analysis::{ServoFold, servo_records};
 use super::format::RecordBody;
 use super::reader::Recording;
-use super::summary::{flag_alarms, servo_records, state_spans};
 use crate::bus::Goal;
 use std::fmt::Write as _;
 use std::io;
@@ -358,9 +358,10 @@ pub fn servo_svg(rec: &Recording, servo: usize, title: &str) -> String {
     let about = rec.header.servos.get(servo).map_or_else(String::new, |s| {
         format!(" — bus {}, ID {}, channel {}", s.bus, s.id, s.channel)
     });
-    let alarms = flag_alarms(rec, servo);
-    let stalled = state_spans(rec, servo, |_, stalled| stalled);
-    let offline = state_spans(rec, servo, |h, _| h == crate::bus::Health::Offline);
+    let fold = ServoFold::over(rec, servo);
+    let alarms = fold.alarms;
+    let stalled = fold.stalled_spans.spans;
+    let offline = fold.offline_spans.spans;
 
     let mut svg = String::with_capacity(64 * 1024);
     let _ = writeln!(svg, r#"<?xml version="1.0" encoding="UTF-8"?>"#);

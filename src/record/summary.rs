@@ -16,53 +16,19 @@
 //! - **alarms**: times a status flag of the servo's replies went on — temperature alarm,
 //!   temperature error, flash write error — each counted separately, over every reply the
 //!   record keeps (samples, position and motion records).
+//!
+//! The records of a servo are folded by [`ServoFold`], as `record trend` and `record plot`
+//! fold them: the state, alarms, spans and temperatures are counted in one place.
 
-use super::format::{Record, RecordBody, RecordServo};
+use super::analysis::ServoFold;
+pub use super::analysis::{Range, flag_alarms, servo_records, state_spans};
+use super::format::{RecordBody, RecordServo};
 use super::reader::Recording;
-use crate::bus::{Goal, Health};
-use crate::protocol::{MmCenti, ReplyFlags};
+use crate::protocol::MmCenti;
 use std::fmt;
 
 /// How long after a goal change a sample counts towards the settled error, in seconds.
 pub const SETTLE_S: f64 = 1.0;
-
-/// Minimum, mean and maximum of a quantity.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Range {
-    pub min: f64,
-    pub mean: f64,
-    pub max: f64,
-}
-
-#[derive(Debug, Clone, Copy, Default)]
-struct Accumulator {
-    min: f64,
-    max: f64,
-    sum: f64,
-    n: u64,
-}
-
-impl Accumulator {
-    fn add(&mut self, v: f64) {
-        if self.n == 0 {
-            self.min = v;
-            self.max = v;
-        } else {
-            self.min = self.min.min(v);
-            self.max = self.max.max(v);
-        }
-        self.sum += v;
-        self.n += 1;
-    }
-
-    fn range(&self) -> Option<Range> {
-        (self.n > 0).then(|| Range {
-            min: self.min,
-            mean: self.sum / self.n as f64,
-            max: self.max,
-        })
-    }
-}
 
 /// The figures of one servo.
 #[derive(Debug, Clone, PartialEq)]
@@ -126,81 +92,6 @@ pub struct Summary {
     pub servos: Vec<ServoSummary>,
 }
 
-/// The records about servo `servo`, in time order (stable for equal times).
-pub fn servo_records(rec: &Recording, servo: usize) -> Vec<&Record> {
-    let mut records: Vec<&Record> = rec
-        .records
-        .iter()
-        .filter(|r| r.body.servo().map(usize::from) == Some(servo))
-        .collect();
-    records.sort_by_key(|r| r.t_us);
-    records
-}
-
-/// The time spans, in seconds, during which servo `servo`'s health records satisfy `state`
-/// (the last span ends at the end of the recording).
-pub fn state_spans(
-    rec: &Recording,
-    servo: usize,
-    state: impl Fn(Health, bool) -> bool,
-) -> Vec<(f64, f64)> {
-    let end = rec.end_t_us() as f64 / 1e6;
-    let mut spans = Vec::new();
-    let mut since: Option<f64> = None;
-    for r in servo_records(rec, servo) {
-        if let RecordBody::Health {
-            health, stalled, ..
-        } = r.body
-        {
-            let now = state(health, stalled);
-            match (since, now) {
-                (None, true) => since = Some(r.t_s()),
-                (Some(s), false) => {
-                    spans.push((s, r.t_s()));
-                    since = None;
-                }
-                _ => {}
-            }
-        }
-    }
-    if let Some(s) = since {
-        spans.push((s, end.max(s)));
-    }
-    spans
-}
-
-/// The times, in seconds, at which a flag of servo `servo`'s replies went on, with the flag's
-/// name. Every reply carries the flags, the reads of position (and current) between two full
-/// reads too: a flag that came and went between two full reads counts.
-pub fn flag_alarms(rec: &Recording, servo: usize) -> Vec<(f64, &'static str)> {
-    let mut alarms = Vec::new();
-    let mut previous = ReplyFlags(0);
-    for r in servo_records(rec, servo) {
-        if let RecordBody::Telemetry { flags, .. }
-        | RecordBody::Position { flags, .. }
-        | RecordBody::Motion { flags, .. } = r.body
-        {
-            let rose = flags.risen_since(previous).0;
-            for (bit, name) in [
-                (ReplyFlags::TEMPERATURE_ALARM, "temperature alarm"),
-                (ReplyFlags::TEMPERATURE_ERROR, "temperature error"),
-                (ReplyFlags::FLASH_WRITE_ERROR, "flash write error"),
-            ] {
-                if rose & bit != 0 {
-                    alarms.push((r.t_s(), name));
-                }
-            }
-            previous = flags;
-        }
-    }
-    alarms
-}
-
-fn total(spans: &[(f64, f64)]) -> f64 {
-    // A fold from +0.0: an empty float sum is −0.0, which prints as "-0.0".
-    spans.iter().fold(0.0, |sum, (a, b)| sum + (b - a))
-}
-
 /// The figures of every servo of the recording's servo table.
 pub fn summary(rec: &Recording) -> Summary {
     let servos = rec
@@ -253,62 +144,43 @@ fn servo_summary(rec: &Recording, index: usize, servo: &RecordServo) -> ServoSum
         max_error_mm: None,
         max_error_at_s: None,
         max_settled_error_mm: None,
-        stalled_s: total(&state_spans(rec, index, |_, stalled| stalled)),
-        offline_s: total(&state_spans(rec, index, |h, _| h == Health::Offline)),
+        stalled_s: 0.0,
+        offline_s: 0.0,
         temperature_alarms: 0,
         temperature_errors: 0,
         flash_errors: 0,
         events: 0,
     };
-    for (_, name) in flag_alarms(rec, index) {
-        match name {
+    let mut fold = ServoFold::new();
+    for r in servo_records(rec, index) {
+        let t = r.t_s();
+        fold.record(t, &r.body);
+        let position = match &r.body {
+            RecordBody::Telemetry { telemetry: tm, .. } => tm.present_position,
+            RecordBody::Position { position, .. } => *position,
+            RecordBody::Motion { motion: m, .. } => m.present_position,
+            _ => continue,
+        };
+        s.note_error(fold.position_goal, t - fold.goal_since_s, position, t);
+    }
+    fold.finish(rec.end_t_us() as f64 / 1e6);
+    for (_, name) in &fold.alarms {
+        match *name {
             "temperature alarm" => s.temperature_alarms += 1,
             "temperature error" => s.temperature_errors += 1,
             _ => s.flash_errors += 1,
         }
     }
-    let (mut temperature, mut current, mut voltage) = Default::default();
-    let mut goal: Option<MmCenti> = None;
-    let mut goal_since = 0.0;
-    for r in servo_records(rec, index) {
-        let t = r.t_s();
-        match &r.body {
-            RecordBody::Goal { goal: g, .. } => {
-                s.goals += 1;
-                match g {
-                    Goal::Position(p) => {
-                        if goal != Some(*p) {
-                            goal_since = t;
-                        }
-                        goal = Some(*p);
-                    }
-                    Goal::Hold => {}
-                    Goal::Off | Goal::Brake => goal = None,
-                }
-            }
-            RecordBody::Telemetry { telemetry: tm, .. } => {
-                s.samples += 1;
-                s.first_sample_s.get_or_insert(t);
-                s.last_sample_s = Some(t);
-                Accumulator::add(&mut temperature, f64::from(tm.present_temperature.0));
-                Accumulator::add(&mut current, tm.present_load.amps());
-                Accumulator::add(&mut voltage, tm.present_voltage.volts());
-                s.note_error(goal, t - goal_since, tm.present_position, t);
-            }
-            RecordBody::Position { position, .. } => {
-                s.note_error(goal, t - goal_since, *position, t);
-            }
-            RecordBody::Motion { motion: m, .. } => {
-                Accumulator::add(&mut current, m.present_load.amps());
-                s.note_error(goal, t - goal_since, m.present_position, t);
-            }
-            RecordBody::Event { .. } => s.events += 1,
-            _ => {}
-        }
-    }
-    s.temperature_c = Accumulator::range(&temperature);
-    s.current_a = Accumulator::range(&current);
-    s.voltage_v = Accumulator::range(&voltage);
+    s.samples = fold.samples;
+    s.first_sample_s = fold.first_sample_s;
+    s.last_sample_s = fold.last_sample_s;
+    s.goals = fold.goals;
+    s.events = fold.events;
+    s.stalled_s = fold.stalled_spans.total();
+    s.offline_s = fold.offline_spans.total();
+    s.temperature_c = fold.temperature_c.range();
+    s.current_a = fold.current_a.range();
+    s.voltage_v = fold.voltage_v.range();
     s
 }
 

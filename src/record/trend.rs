@@ -35,6 +35,9 @@
 //! - **alarms**: times a status flag went on (temperature alarm, temperature error, flash write
 //!   error), in any reply the record keeps (samples, position and motion records).
 //!
+//! The state (online, stalled, goal), the alarms, the time stalled, the temperatures and the
+//! peak current come from [`super::analysis::ServoFold`], which `record summary` uses too.
+//!
 //! A judged flight is marked **inspect** by each of these (the thresholds are constants here):
 //! friction or holding current above the baseline by more than [`RISE_LIMIT`] (+25 %), the
 //! holding current also by at least [`HOLDING_MIN_RISE_A`]; heating above its baseline by
@@ -44,12 +47,11 @@
 //! its latest flight is marked, **watch** when an earlier one was but not the latest, **ok**
 //! otherwise, and **baseline** while it has no flight beyond its baseline.
 
+use super::analysis::ServoFold;
 use super::clock::Utc;
 use super::format::{FILE_EXTENSION, RecordBody, RecordHeader, decode_header};
 use super::format::{HeaderError, MAX_HEADER_BODY};
 use super::reader::{RecordError, scan_record};
-use crate::bus::{Goal, Health};
-use crate::protocol::ReplyFlags;
 use serde::Serialize;
 use std::collections::{BTreeMap, VecDeque};
 use std::fmt;
@@ -306,55 +308,42 @@ impl std::str::FromStr for Since {
 // ---------------------------------------------------------------------------------------------
 // One servo through one run
 
-/// A servo's running state while its run is read.
+/// A servo's running state while its run is read: the fold every record command shares, and
+/// the motion figures of this one.
 #[derive(Debug, Clone)]
 struct Acc {
-    online: bool,
-    goal_on: bool,
+    fold: ServoFold,
     last_pos: Option<(f64, f64)>,
     window: VecDeque<(f64, f64)>,
     moving: bool,
     speed: Option<f64>,
     anchor: Option<f64>,
     direction: i8,
-    stalled_since: Option<f64>,
-    stalled: bool,
     last_temp: Option<(f64, f64)>,
-    flags: ReplyFlags,
-    replies: Option<(u32, u32)>,
     moving_i: f64,
     moving_v: f64,
     moving_n: u64,
     holding_i: f64,
     holding_n: u64,
-    temp_sum: f64,
-    temp_n: u64,
     flight: Flight,
 }
 
 impl Acc {
     fn new(run_start_unix_ns: i64) -> Acc {
         Acc {
-            online: true,
-            goal_on: true,
+            fold: ServoFold::new(),
             last_pos: None,
             window: VecDeque::new(),
             moving: false,
             speed: None,
             anchor: None,
             direction: 0,
-            stalled_since: None,
-            stalled: false,
             last_temp: None,
-            flags: ReplyFlags(0),
-            replies: None,
             moving_i: 0.0,
             moving_v: 0.0,
             moving_n: 0,
             holding_i: 0.0,
             holding_n: 0,
-            temp_sum: 0.0,
-            temp_n: 0,
             flight: Flight {
                 run_start_unix_ns,
                 date: Utc::from_unix_ns(run_start_unix_ns).iso(),
@@ -383,7 +372,7 @@ impl Acc {
     }
 
     fn force_on(&self) -> bool {
-        self.online && self.goal_on
+        self.fold.force_on()
     }
 
     /// A present position `mm` seen at `t` s.
@@ -437,35 +426,21 @@ impl Acc {
         }
     }
 
-    fn telemetry(&mut self, t: f64, current_a: f64, temperature_c: f64, flags: ReplyFlags) {
-        self.current(current_a);
-        let f = &mut self.flight;
-        f.peak_c = Some(f.peak_c.map_or(temperature_c, |p| p.max(temperature_c)));
-        f.start_c.get_or_insert(temperature_c);
-        self.temp_sum += temperature_c;
-        self.temp_n += 1;
+    /// A temperature read at `t`.
+    fn temperature(&mut self, t: f64, temperature_c: f64) {
         if let Some((t0, c0)) = self.last_temp {
             let dt = t - t0;
             if dt > 0.0 && dt <= MAX_GAP_S && c0 > HOT_C {
-                f.hot_min += dt / 60.0;
+                self.flight.hot_min += dt / 60.0;
             }
         }
         self.last_temp = Some((t, temperature_c));
-        self.flags(flags);
-    }
-
-    /// The status flags of a reply (every read carries them): a flag that went on is an alarm.
-    fn flags(&mut self, flags: ReplyFlags) {
-        self.flight.alarms += flags.risen_since(self.flags).0.count_ones();
-        self.flags = flags;
     }
 
     /// A current read (with the full telemetry, or with the position between two full reads).
     fn current(&mut self, current_a: f64) {
-        let f = &mut self.flight;
-        f.peak_a = Some(f.peak_a.map_or(current_a, |p| p.max(current_a)));
         if self.force_on()
-            && !self.stalled
+            && !self.fold.stalled
             && let Some(v) = self.speed
         {
             if v >= MOVING_MM_S {
@@ -479,54 +454,19 @@ impl Acc {
         }
     }
 
-    fn health(&mut self, t: f64, health: Health, stalled: bool) {
-        self.online = matches!(health, Health::Online | Health::Stale);
-        match (self.stalled_since, stalled) {
-            (None, true) => self.stalled_since = Some(t),
-            (Some(s), false) => {
-                self.flight.stalled_s += (t - s).max(0.0);
-                self.stalled_since = None;
-            }
-            _ => {}
-        }
-        self.stalled = stalled;
-    }
-
     fn record(&mut self, t: f64, body: &RecordBody) {
+        self.fold.record(t, body);
         match body {
-            RecordBody::Goal { goal, .. } => {
-                self.goal_on = !matches!(goal, Goal::Off | Goal::Brake);
-            }
-            RecordBody::Telemetry {
-                telemetry, flags, ..
-            } => {
+            RecordBody::Telemetry { telemetry, .. } => {
                 self.position(t, telemetry.present_position.mm());
-                self.telemetry(
-                    t,
-                    telemetry.present_load.amps(),
-                    f64::from(telemetry.present_temperature.0),
-                    *flags,
-                );
+                self.current(telemetry.present_load.amps());
+                self.temperature(t, f64::from(telemetry.present_temperature.0));
             }
-            RecordBody::Position {
-                position, flags, ..
-            } => {
-                self.position(t, position.mm());
-                self.flags(*flags);
-            }
-            RecordBody::Motion {
-                motion: m, flags, ..
-            } => {
+            RecordBody::Position { position, .. } => self.position(t, position.mm()),
+            RecordBody::Motion { motion: m, .. } => {
                 self.position(t, m.present_position.mm());
                 self.current(m.present_load.amps());
-                self.flags(*flags);
             }
-            RecordBody::Health {
-                health, stalled, ..
-            } => self.health(t, *health, *stalled),
-            RecordBody::Replies {
-                answered, missed, ..
-            } => self.replies = Some((*answered, *missed)),
             _ => {}
         }
     }
@@ -534,18 +474,20 @@ impl Acc {
     /// The flight's figures, the run ending at `end` s; `None` if the servo never answered.
     fn finish(mut self, end: f64) -> Option<Flight> {
         self.last_pos?;
-        if let Some(s) = self.stalled_since {
-            self.flight.stalled_s += (end - s).max(0.0);
-        }
+        let fold = &mut self.fold;
+        fold.finish(end);
         let f = &mut self.flight;
+        f.stalled_s = fold.stalled_spans.total();
+        f.alarms = fold.alarms.len() as u32;
+        f.peak_a = fold.current_a.peak();
+        f.peak_c = fold.temperature_c.peak();
+        f.start_c = fold.temperature_c.first();
+        f.mean_c = fold.temperature_c.mean();
         if self.moving_n >= MIN_SAMPLES && self.moving_v > 0.0 {
             f.friction_ma_per_mm_s = Some(1000.0 * self.moving_i / self.moving_v);
         }
         if self.holding_n >= MIN_SAMPLES {
             f.holding_a = Some(self.holding_i / self.holding_n as f64);
-        }
-        if self.temp_n > 0 {
-            f.mean_c = Some(self.temp_sum / self.temp_n as f64);
         }
         if let (Some(peak), Some(start)) = (f.peak_c, f.start_c) {
             f.rise_c = Some(peak - start);
@@ -554,7 +496,7 @@ impl Acc {
             }
         }
         f.margin_c = f.peak_c.map(|p| ALARM_C - p);
-        f.bad_replies = self.replies.and_then(|(good, bad)| {
+        f.bad_replies = fold.replies.and_then(|(good, bad)| {
             let all = u64::from(good) + u64::from(bad);
             (all > 0).then(|| bad as f64 / all as f64)
         });
