@@ -445,3 +445,78 @@ async fn mavlink_1_outputs_drive_the_servos() {
     let _ = sweep_us;
     let _ = free_udp_port;
 }
+
+/// An autopilot that sends its outputs slower than asked (PX4's onboard link before the request
+/// takes, or a link over its byte budget): the view shows the rate received beside the rate
+/// asked, the flight record keeps it, and the log and the record say once, as a warning, which
+/// parameters set it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn outputs_slower_than_asked_are_shown_recorded_and_said_once() {
+    let chain = Chain::start(FOUR_SERVOS, false).await;
+    let ap =
+        mavlink::connect_async::<MavMessage>(&format!("udpout:127.0.0.1:{}", chain.autopilot_port))
+            .await
+            .unwrap();
+    let header = MavHeader {
+        system_id: 1,
+        component_id: 1,
+        sequence: 0,
+    };
+    let hb = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        mavtype: MavType::MAV_TYPE_FIXED_WING,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+        ..Default::default()
+    });
+    let out = MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
+        servo1_raw: 1520,
+        servo2_raw: 1520,
+        servo3_raw: 1520,
+        servo4_raw: 1520,
+        ..Default::default()
+    });
+    // 10 Hz, against the 40 Hz the mapping asks for, for 9 s: past the 6 s a slow stream must
+    // last before it is said. The pacing is the test's: a late tick makes the rate lower still.
+    let mut tick = tokio::time::interval(Duration::from_millis(100));
+    for n in 0u32..90 {
+        tick.tick().await;
+        if n.is_multiple_of(10) {
+            ap.send(&header, &hb).await.unwrap();
+        }
+        ap.send(&header, &out).await.unwrap();
+    }
+    {
+        let view = chain.view.borrow();
+        let [(0, hz)] = view.outputs_received_hz[..] else {
+            panic!("one port received: {:?}", view.outputs_received_hz)
+        };
+        assert!((5.0..=11.0).contains(&hz), "received {hz} Hz");
+        assert_eq!(view.output_rate_hz, 40.0);
+    }
+    let dir = chain.record_dir.clone();
+    chain.stop().await;
+    let events: Vec<(u8, String)> = only_record(&dir)
+        .records
+        .into_iter()
+        .filter_map(|r| match r.body {
+            RecordBody::Event {
+                servo: None,
+                severity,
+                text,
+            } => Some((severity, text)),
+            _ => None,
+        })
+        .collect();
+    let warning = MavSeverity::MAV_SEVERITY_WARNING as u8;
+    let slow: Vec<_> = events
+        .iter()
+        .filter(|(s, t)| *s == warning && t.contains("below the 40 Hz asked for"))
+        .collect();
+    assert_eq!(slow.len(), 1, "said once: {events:#?}");
+    assert!(slow[0].1.contains("MAV_n_RATE"), "{}", slow[0].1);
+    assert!(
+        events
+            .iter()
+            .any(|(_, t)| t.starts_with("output rate received: SERVO_OUTPUT_RAW port 0")),
+        "the rate received is in the record: {events:#?}"
+    );
+}

@@ -39,6 +39,7 @@ use super::health::{BridgeEvent, ServoReport};
 use super::outputs::{ChannelValues, from_actuator_output_status, from_servo_output_raw};
 use super::param_server::{ParamOut, ParamServer, ParamSet};
 use super::params::{ServoInfo, copy_tunables};
+use super::rate::{LOW_SHARE, RateMeter};
 use super::schedule::TelemetrySchedule;
 use super::statustext::{Throttle, describe, with_folded};
 use super::telemetry;
@@ -134,8 +135,8 @@ pub struct BridgeCore {
     stream_failsafe: bool,
     /// The stream runs as asked: the autopilot accepted the rate, or it arrives at ≥ 70 % of it.
     stream_ok: bool,
-    /// Output messages counted since `rate_window_start`, to measure the stream's rate.
-    rate_window: (Instant, u32),
+    /// The stream's rate as received, per port.
+    rate: RateMeter,
     requested_rate_hz: f32,
     /// The SCHED_LOOP_RATE advice has been given.
     rate_advice_given: bool,
@@ -187,7 +188,11 @@ impl BridgeCore {
             last_output_at: None,
             stream_failsafe: false,
             stream_ok: false,
-            rate_window: (now, 0),
+            rate: RateMeter::new(
+                cfg.mavlink.source,
+                cfg.servos.iter().map(|s| s.channel),
+                now,
+            ),
             next_stream_request: now,
             next_heartbeat: now,
             telemetry: TelemetrySchedule::new(servo_count, now),
@@ -235,9 +240,22 @@ impl BridgeCore {
         self.requested_rate_hz
     }
 
-    /// Messages for the user about the autopilot link (e.g. which parameter limits the rate).
+    /// Messages for the user about the autopilot link (e.g. which parameter limits the rate),
+    /// to be said as warnings.
     pub fn take_notes(&mut self) -> Vec<String> {
         std::mem::take(&mut self.notes)
+    }
+
+    /// New measurements of the output rate received (see [`super::rate`]), to be said as
+    /// information.
+    pub fn take_rate_news(&mut self) -> Vec<String> {
+        self.rate.take_news()
+    }
+
+    /// The output rate received per message port over the last measurement (see
+    /// [`super::rate`]); empty before the first.
+    pub fn received_rates_hz(&self) -> Vec<(u8, f32)> {
+        self.rate.received_hz()
     }
 
     /// A message arrived on `link`.
@@ -319,19 +337,22 @@ impl BridgeCore {
         if link != AUTOPILOT_LINK || Some(from) != self.autopilot {
             return;
         }
-        let values = match (msg, self.cfg.mavlink.source) {
-            (MavMessage::SERVO_OUTPUT_RAW(m), Source::ServoOutputRaw) => from_servo_output_raw(m),
+        let (port, values) = match (msg, self.cfg.mavlink.source) {
+            (MavMessage::SERVO_OUTPUT_RAW(m), Source::ServoOutputRaw) => {
+                (m.port, from_servo_output_raw(m))
+            }
             (MavMessage::ACTUATOR_OUTPUT_STATUS(m), Source::ActuatorOutputStatus) => {
-                from_actuator_output_status(m)
+                (0, from_actuator_output_status(m))
             }
             _ => return,
         };
-        self.handle_outputs(&values, now);
+        self.handle_outputs(port, &values, now);
     }
 
-    fn handle_outputs(&mut self, values: &ChannelValues, now: Instant) {
+    fn handle_outputs(&mut self, port: u8, values: &ChannelValues, now: Instant) {
         self.last_output_at = Some(now);
-        self.measure_rate(now);
+        let fastest = self.rate.count(port, self.requested_rate_hz, now);
+        self.judge_rate(fastest);
         let stream_back = self.stream_failsafe;
         if stream_back {
             self.stream_failsafe = false;
@@ -386,17 +407,13 @@ impl BridgeCore {
 
     /// Count the stream's messages over windows of two seconds; a window at ≥ 70 % of the
     /// requested rate means the stream runs as asked, whether or not an ACK said so.
-    fn measure_rate(&mut self, now: Instant) {
-        let (start, count) = &mut self.rate_window;
-        *count += 1;
-        let window = now.duration_since(*start);
-        if window >= Duration::from_secs(2) {
-            let hz = *count as f32 / window.as_secs_f32();
-            if hz >= 0.7 * self.requested_rate_hz {
-                self.stream_ok = true;
-            }
-            self.rate_window = (now, 0);
+    /// A measurement window closed with `fastest` the fastest port's rate: a stream that
+    /// arrives at the rate asked is not asked for again.
+    fn judge_rate(&mut self, fastest: Option<f32>) {
+        if fastest.is_some_and(|hz| hz >= LOW_SHARE * self.requested_rate_hz) {
+            self.stream_ok = true;
         }
+        self.notes.extend(self.rate.take_warnings());
     }
 
     /// A command (DO_SET_SERVO, DO_SET_ACTUATOR) moves servo `i`: like an output message
@@ -659,6 +676,10 @@ impl BridgeCore {
     /// Time has come (see [`BridgeCore::poll_timeout`]): failsafe, stream requests, telemetry.
     pub fn handle_timeout(&mut self, now: Instant, reports: &[ServoReport]) {
         self.check_failsafe(now);
+        if self.last_output_at.is_some() {
+            let fastest = self.rate.roll(self.requested_rate_hz, now);
+            self.judge_rate(fastest);
+        }
         for (event, folded) in self.throttle.due(now) {
             self.statustext(&event, folded);
         }
@@ -904,6 +925,9 @@ impl BridgeCore {
                 due = due.min(at + timeout);
             }
             t = earliest(t, Some(due));
+        }
+        if self.last_output_at.is_some() {
+            t = earliest(t, Some(self.rate.deadline()));
         }
         if self.system_id.is_none() {
             return t;

@@ -20,6 +20,7 @@ pub mod outbox;
 pub mod outputs;
 pub mod param_server;
 pub mod params;
+pub mod rate;
 pub mod schedule;
 pub mod signing;
 pub mod statustext;

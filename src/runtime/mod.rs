@@ -89,6 +89,9 @@ pub struct BridgeView {
     pub autopilot: Option<(u8, u8)>,
     pub failsafe: bool,
     pub output_rate_hz: f32,
+    /// The output rate received per message port (SERVO_OUTPUT_RAW port 0: channels 1–16,
+    /// port 1: 17–32; ACTUATOR_OUTPUT_STATUS: 0) over the last measurement; empty before it.
+    pub outputs_received_hz: Vec<(u8, f32)>,
     /// Each bus's status, in the order of the mapping file's `[[bus]]` tables.
     pub buses: Vec<BusStatus>,
     /// The latest STATUSTEXTs sent, oldest first (at most [`VIEW_TEXTS`]).
@@ -674,9 +677,7 @@ impl Bridge {
                 }
             }
             self.pass_messages();
-            for note in self.core.take_notes() {
-                tracing::warn!("{note}");
-            }
+            self.say_notes();
             self.refresh_view();
             self.feed_watchdog();
             self.note_no_autopilot();
@@ -818,6 +819,25 @@ impl Bridge {
         }
     }
 
+    /// What the core has to tell the user about the autopilot link: warnings, and the output
+    /// rate received (see [`crate::mavlink::rate`]); in the log and the flight record.
+    fn say_notes(&mut self) {
+        const WARNING: u8 = mavlink::dialects::common::MavSeverity::MAV_SEVERITY_WARNING as u8;
+        const INFO: u8 = mavlink::dialects::common::MavSeverity::MAV_SEVERITY_INFO as u8;
+        let notes = self.core.take_notes().into_iter().map(|n| (WARNING, n));
+        let news = self.core.take_rate_news().into_iter().map(|n| (INFO, n));
+        for (severity, text) in notes.chain(news) {
+            if severity == WARNING {
+                tracing::warn!("{text}");
+            } else {
+                tracing::info!("{text}");
+            }
+            if let Some(r) = &self.record {
+                r.event(None, severity, text);
+            }
+        }
+    }
+
     /// Refresh the view for the live table and the tests, at most every [`VIEW_PERIOD`].
     fn refresh_view(&mut self) {
         let Some(view) = self
@@ -835,6 +855,7 @@ impl Bridge {
             autopilot: self.core.autopilot(),
             failsafe: self.core.in_failsafe(),
             output_rate_hz: self.core.requested_rate_hz(),
+            outputs_received_hz: self.core.received_rates_hz(),
             buses: statuses,
             texts: self.texts.iter().cloned().collect(),
             signing_drops: self

@@ -127,8 +127,8 @@ impl LiveModel {
     pub fn update(&mut self, view: &BridgeView, log: Vec<String>) {
         self.link = match view.autopilot {
             Some((s, c)) => format!(
-                "autopilot {s}/{c}   output rate asked: {:.0} Hz   failsafe: {}{}",
-                view.output_rate_hz,
+                "autopilot {s}/{c}   {}   failsafe: {}{}",
+                super::table::rates_text(view),
                 if view.failsafe { "ACTIVE" } else { "no" },
                 super::table::drops_text(view)
             ),
@@ -766,7 +766,7 @@ mod tests {
     }
 
     #[test]
-    fn the_link_line_says_whom_and_whether_in_failsafe() {
+    fn the_link_line_says_whom_the_rates_asked_and_received_and_whether_in_failsafe() {
         let mut m = LiveModel::default();
         m.update(&BridgeView::default(), vec![]);
         assert_eq!(m.link, "waiting for the autopilot's heartbeat");
@@ -779,7 +779,29 @@ mod tests {
         m.update(&view, vec![]);
         assert_eq!(
             m.link,
-            "autopilot 1/1   output rate asked: 40 Hz   failsafe: ACTIVE"
+            "autopilot 1/1   output rate asked: 40 Hz, received: –   failsafe: ACTIVE"
+        );
+        // The rate received, per port when two send.
+        let one = BridgeView {
+            outputs_received_hz: vec![(0, 10.04)],
+            ..view.clone()
+        };
+        m.update(&one, vec![]);
+        assert!(
+            m.link.contains("asked: 40 Hz, received: 10.0 Hz   "),
+            "{}",
+            m.link
+        );
+        let two = BridgeView {
+            outputs_received_hz: vec![(0, 39.96), (1, 10.0)],
+            ..view
+        };
+        m.update(&two, vec![]);
+        assert!(
+            m.link
+                .contains("asked: 40 Hz, received: 40.0 Hz (port 0), 10.0 Hz (port 1)   "),
+            "{}",
+            m.link
         );
     }
 

@@ -42,6 +42,24 @@ pub fn drops_text(view: &BridgeView) -> String {
     text
 }
 
+/// The output rate asked of the autopilot, and the rate received per message port (one rate
+/// when one port sends): `output rate asked: 50 Hz, received: 10.0 Hz`.
+pub fn rates_text(view: &BridgeView) -> String {
+    let received = match &view.outputs_received_hz[..] {
+        [] => "–".to_string(),
+        [(_, hz)] => format!("{hz:.1} Hz"),
+        ports => ports
+            .iter()
+            .map(|(port, hz)| format!("{hz:.1} Hz (port {port})"))
+            .collect::<Vec<_>>()
+            .join(", "),
+    };
+    format!(
+        "output rate asked: {:.0} Hz, received: {received}",
+        view.output_rate_hz
+    )
+}
+
 /// The table as text.
 pub fn render(view: &BridgeView) -> String {
     let mut out = String::new();
@@ -51,8 +69,8 @@ pub fn render(view: &BridgeView) -> String {
     };
     let _ = writeln!(
         out,
-        "{autopilot}   output rate asked: {:.0} Hz   failsafe: {}{}",
-        view.output_rate_hz,
+        "{autopilot}   {}   failsafe: {}{}",
+        rates_text(view),
         if view.failsafe { "ACTIVE" } else { "no" },
         drops_text(view)
     );
