@@ -19,6 +19,8 @@
 //!   the pictures and the trend;
 //! - [`summary`](mod@summary), [`csv`], [`plot`], [`page`]: what `lj9da-bridge record summary|csv|plot`
 //!   show;
+//! - `svg`: the SVG drawing the pictures and the trend's page share (escaping, ticks, axes,
+//!   grid, reference lines, polylines);
 //! - [`trend`](mod@trend): each servo's wear across flights, what `lj9da-bridge record trend` shows;
 //! - [`cli`]: [`RecordCommand`] and [`cli::run`], the `record` subcommand;
 //! - `crc` and `clock`: CRC-32 and UTC dates (through `crc32fast` and `time`).
@@ -55,6 +57,7 @@ pub mod plot;
 pub mod reader;
 pub mod rotate;
 pub mod summary;
+mod svg;
 pub mod trend;
 pub mod trend_html;
 pub mod writer;

@@ -18,6 +18,7 @@
 use super::analysis::{ServoFold, servo_records};
 use super::format::RecordBody;
 use super::reader::Recording;
+use super::svg::{Area, escape, nice_step, polyline, tick_label, ticks};
 use crate::bus::Goal;
 use std::fmt::Write as _;
 use std::io;
@@ -55,101 +56,6 @@ struct Panel {
     title: &'static str,
     series: Vec<Series>,
     references: Vec<(f64, &'static str, &'static str)>,
-}
-
-/// Text for XML.
-pub(crate) fn escape(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&apos;"),
-            c if c.is_control() => out.push(' '),
-            c => out.push(c),
-        }
-    }
-    out
-}
-
-/// A tick spacing of 1, 2 or 5 × 10ⁿ giving about `target` ticks over `span`.
-pub(crate) fn nice_step(span: f64, target: f64) -> f64 {
-    let raw = span / target;
-    if !raw.is_finite() || raw <= 0.0 {
-        return 1.0;
-    }
-    let magnitude = 10f64.powf(raw.log10().floor());
-    let norm = raw / magnitude;
-    let nice = if norm < 1.5 {
-        1.0
-    } else if norm < 3.0 {
-        2.0
-    } else if norm < 7.0 {
-        5.0
-    } else {
-        10.0
-    };
-    nice * magnitude
-}
-
-pub(crate) fn ticks(lo: f64, hi: f64, target: f64) -> Vec<f64> {
-    let step = nice_step(hi - lo, target);
-    let mut v = (lo / step).ceil() * step;
-    let mut out = Vec::new();
-    while v <= hi + step * 1e-9 && out.len() < 50 {
-        out.push(if v.abs() < step * 1e-9 { 0.0 } else { v });
-        v += step;
-    }
-    out
-}
-
-/// A plot area's horizontal grid lines with their values at its left, about `target` of them
-/// between `lo` and `hi`; `area` is the area's left edge and width, `y_of` a value's height.
-pub(crate) fn y_grid(
-    svg: &mut String,
-    area: (f64, f64),
-    (lo, hi): (f64, f64),
-    target: f64,
-    y_of: impl Fn(f64) -> f64,
-) {
-    let (left, width) = area;
-    let step = nice_step(hi - lo, target);
-    for v in ticks(lo, hi, target) {
-        let y = y_of(v);
-        let _ = writeln!(
-            svg,
-            r##"<line x1="{left}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="#eee"/><text x="{:.1}" y="{:.1}" text-anchor="end">{}</text>"##,
-            left + width,
-            left - 6.0,
-            y + 4.0,
-            tick_label(v, step)
-        );
-    }
-}
-
-/// A dashed reference line across a plot area (`area`: left edge and width) at height `y`,
-/// labelled at its right end.
-pub(crate) fn reference_line(svg: &mut String, area: (f64, f64), y: f64, color: &str, label: &str) {
-    let (left, width) = area;
-    let _ = writeln!(
-        svg,
-        r#"<line class="reference" x1="{left}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="{color}" stroke-dasharray="2 4"/><text x="{:.1}" y="{:.1}" fill="{color}" text-anchor="end">{}</text>"#,
-        left + width,
-        left + width - 4.0,
-        y - 3.0,
-        escape(label)
-    );
-}
-
-pub(crate) fn tick_label(v: f64, step: f64) -> String {
-    let decimals = if step >= 1.0 {
-        0
-    } else {
-        (-step.log10().floor()) as usize
-    };
-    format!("{v:.decimals$}")
 }
 
 /// Split time-ordered points where the time between two exceeds the gap for these samples.
@@ -386,15 +292,17 @@ pub fn servo_svg(rec: &Recording, servo: usize, title: &str) -> String {
     let x_step = nice_step(t1 - t0, 12.0);
     let x_ticks = ticks(t0, t1, 12.0);
     for (i, panel) in panels.iter().enumerate() {
-        let top = TOP + i as f64 * (PANEL_HEIGHT + PANEL_GAP);
-        let bottom = top + PANEL_HEIGHT;
-        let (lo, hi) = y_range(panel);
-        let y_of = |v: f64| top + (1.0 - (v - lo) / (hi - lo)) * PANEL_HEIGHT;
+        let area = Area {
+            left: LEFT,
+            top: TOP + i as f64 * (PANEL_HEIGHT + PANEL_GAP),
+            width: PLOT_WIDTH,
+            height: PANEL_HEIGHT,
+        };
+        let (top, bottom) = (area.top, area.bottom());
+        let range = y_range(panel);
+        let y_of = |v: f64| area.y_of(v, range);
         let _ = writeln!(svg, r#"<g class="panel" data-panel="{}">"#, panel.name);
-        let _ = writeln!(
-            svg,
-            r##"<rect x="{LEFT}" y="{top}" width="{PLOT_WIDTH}" height="{PANEL_HEIGHT}" fill="none" stroke="#999"/>"##
-        );
+        area.frame(&mut svg);
         for (spans, class, color) in [
             (&stalled, "stalled", "#ff9896"),
             (&offline, "offline", "#c7c7c7"),
@@ -408,30 +316,15 @@ pub fn servo_svg(rec: &Recording, servo: usize, title: &str) -> String {
                 );
             }
         }
-        y_grid(&mut svg, (LEFT, PLOT_WIDTH), (lo, hi), 5.0, y_of);
+        area.y_grid(&mut svg, range, 5.0);
+        let last = i == panels.len() - 1;
         for &t in &x_ticks {
-            let x = x_of(t);
-            let _ = writeln!(
-                svg,
-                r##"<line x1="{x:.1}" y1="{top}" x2="{x:.1}" y2="{bottom}" stroke="#f2f2f2"/>"##
-            );
-            if i == panels.len() - 1 {
-                let _ = writeln!(
-                    svg,
-                    r#"<text x="{x:.1}" y="{:.1}" text-anchor="middle">{}</text>"#,
-                    bottom + 16.0,
-                    tick_label(t, x_step)
-                );
-            }
+            let label = last.then(|| tick_label(t, x_step));
+            area.x_tick(&mut svg, x_of(t), label.as_deref());
         }
-        let _ = writeln!(
-            svg,
-            r#"<text x="{LEFT}" y="{:.1}" font-weight="bold">{}</text>"#,
-            top - 7.0,
-            escape(panel.title)
-        );
+        area.title(&mut svg, panel.title);
         for &(v, label, color) in &panel.references {
-            reference_line(&mut svg, (LEFT, PLOT_WIDTH), y_of(v), color, label);
+            area.reference_line(&mut svg, y_of(v), color, label);
         }
         let mut drawn = false;
         for s in &panel.series {
@@ -440,32 +333,26 @@ pub fn servo_svg(rec: &Recording, servo: usize, title: &str) -> String {
                 if points.len() == 1 {
                     points.push(points[0]);
                 }
-                let mut coords = String::with_capacity(points.len() * 14);
-                for (t, v) in points {
-                    let _ = write!(coords, "{:.1},{:.1} ", x_of(t), y_of(v));
-                }
-                let _ = writeln!(
-                    svg,
-                    r#"<polyline data-series="{}" fill="none" stroke="{}" stroke-width="1.3" stroke-linecap="round"{} points="{}"/>"#,
+                let attributes = format!(
+                    r#"data-series="{}" fill="none" stroke="{}" stroke-width="1.3" stroke-linecap="round"{}"#,
                     s.name,
                     s.color,
                     if s.dashed {
                         r#" stroke-dasharray="6 3""#
                     } else {
                         ""
-                    },
-                    coords.trim_end()
+                    }
+                );
+                polyline(
+                    &mut svg,
+                    &attributes,
+                    points.into_iter().map(|(t, v)| (x_of(t), y_of(v))),
                 );
                 drawn = true;
             }
         }
         if !drawn {
-            let _ = writeln!(
-                svg,
-                r##"<text x="{:.1}" y="{:.1}" text-anchor="middle" fill="#999">no data</text>"##,
-                LEFT + PLOT_WIDTH / 2.0,
-                top + PANEL_HEIGHT / 2.0
-            );
+            area.no_data(&mut svg);
         }
         for &(t, what) in &alarms {
             let x = x_of(t);

@@ -11,7 +11,7 @@
 
 use super::clock::Utc;
 use super::page::ZOOM_SCRIPT;
-use super::plot::{escape, nice_step, reference_line, ticks, y_grid};
+use super::svg::{Area, escape, nice_step, polyline, ticks};
 use super::trend::{
     ALARM_C, Flight, HOLDING_MIN_RISE_A, MARGIN_MIN_DROP_C, RISE_LIMIT, ServoTrend, Trend,
 };
@@ -135,8 +135,12 @@ pub fn servo_trend_svg(s: &ServoTrend) -> String {
         .filter(|d| d.fract() == 0.0)
         .collect();
     for (k, p) in panels.iter().enumerate() {
-        let top = TOP + k as f64 * (PANEL_HEIGHT + PANEL_GAP) + 16.0;
-        let bottom = top + PANEL_HEIGHT;
+        let area = Area {
+            left: LEFT,
+            top: TOP + k as f64 * (PANEL_HEIGHT + PANEL_GAP) + 16.0,
+            width: PLOT_WIDTH,
+            height: PANEL_HEIGHT,
+        };
         let values = p
             .points
             .iter()
@@ -150,29 +154,15 @@ pub fn servo_trend_svg(s: &ServoTrend) -> String {
             (vlo, vhi) = (0.0, 1.0);
         }
         let pad = ((vhi - vlo) * 0.08).max(vhi.abs().max(1e-3) * 0.02);
-        let (vlo, vhi) = (vlo - pad, vhi + pad);
-        let y_of = |v: f64| top + (1.0 - (v - vlo) / (vhi - vlo)) * PANEL_HEIGHT;
+        let range = (vlo - pad, vhi + pad);
+        let y_of = |v: f64| area.y_of(v, range);
         let _ = writeln!(svg, r#"<g class="panel" data-panel="{}">"#, p.figure);
-        let _ = writeln!(
-            svg,
-            r#"<text x="{LEFT}" y="{:.1}" font-weight="bold">{}</text>"#,
-            top - 6.0,
-            escape(p.title)
-        );
-        let _ = writeln!(
-            svg,
-            r##"<rect x="{LEFT}" y="{top:.1}" width="{PLOT_WIDTH}" height="{PANEL_HEIGHT}" fill="none" stroke="#999"/>"##
-        );
-        y_grid(&mut svg, (LEFT, PLOT_WIDTH), (vlo, vhi), 4.0, y_of);
+        area.title(&mut svg, p.title);
+        area.frame(&mut svg);
+        area.y_grid(&mut svg, range, 4.0);
         for &d in &x_ticks {
             let ns = lo + (d * NS_PER_DAY) as i64;
-            let x = x_of(ns);
-            let _ = writeln!(
-                svg,
-                r##"<line x1="{x:.1}" y1="{top:.1}" x2="{x:.1}" y2="{bottom:.1}" stroke="#f2f2f2"/><text x="{x:.1}" y="{:.1}" text-anchor="middle" fill="#555">{}</text>"##,
-                bottom + 14.0,
-                Utc::from_unix_ns(ns).date()
-            );
+            area.x_tick(&mut svg, x_of(ns), Some(&Utc::from_unix_ns(ns).date()));
         }
         if let Some((a, b)) = p.band {
             let (ya, yb) = (y_of(a), y_of(b));
@@ -185,26 +175,15 @@ pub fn servo_trend_svg(s: &ServoTrend) -> String {
             );
         }
         if let Some((v, label)) = p.reference {
-            reference_line(&mut svg, (LEFT, PLOT_WIDTH), y_of(v), "#d62728", label);
+            area.reference_line(&mut svg, y_of(v), "#d62728", label);
         }
         if p.points.is_empty() {
-            let _ = writeln!(
-                svg,
-                r##"<text x="{:.1}" y="{:.1}" text-anchor="middle" fill="#999">no data</text>"##,
-                LEFT + PLOT_WIDTH / 2.0,
-                top + PANEL_HEIGHT / 2.0
-            );
+            area.no_data(&mut svg);
         } else {
-            let coords: Vec<String> = p
-                .points
-                .iter()
-                .map(|&(_, ns, v, _)| format!("{:.1},{:.1}", x_of(ns), y_of(v)))
-                .collect();
-            let _ = writeln!(
-                svg,
-                r#"<polyline fill="none" stroke="{}" stroke-width="1.2" points="{}"/>"#,
-                p.color,
-                coords.join(" ")
+            polyline(
+                &mut svg,
+                &format!(r#"fill="none" stroke="{}" stroke-width="1.2""#, p.color),
+                p.points.iter().map(|&(_, ns, v, _)| (x_of(ns), y_of(v))),
             );
         }
         for &(n, ns, v, cross) in &p.points {
