@@ -19,6 +19,7 @@ fn servo() -> ServoConfig {
         max_force_percent: None,
         failsafe: FailsafeAction::Hold,
         actuator: None,
+        named_values: None,
     }
 }
 

@@ -1,7 +1,7 @@
 //! `lj9da-bridge check` warns about mappings that are valid but will not do what their author
 //! expects with a given autopilot or ground station.
 
-use lj9da_bridge::config::Config;
+use lj9da_bridge::config::{Config, Quantity};
 use std::process::Command;
 
 fn mapping(source: &str, channel: u8) -> String {
@@ -86,11 +86,15 @@ fn more_than_20_named_values_warn_that_mission_planner_shows_20() {
     let warnings = cfg.warnings();
     assert_eq!(warnings.len(), 1, "{warnings:?}");
     assert!(
-        warnings[0].contains("24 NAMED_VALUE_FLOAT names"),
+        warnings[0].contains("6 servos send 24 NAMED_VALUE_FLOAT names"),
         "{warnings:?}"
     );
     assert!(warnings[0].contains("Mission Planner"), "{warnings:?}");
     assert!(warnings[0].contains("at most 3 per servo"), "{warnings:?}");
+    assert!(
+        warnings[0].contains("ESC_INFO"),
+        "points at what shows every servo: {warnings:?}"
+    );
     // Five servos × four, or six servos × three, fit.
     assert!(
         Config::parse(&servos(5, ""), "t.toml")
@@ -112,4 +116,58 @@ fn more_than_20_named_values_warn_that_mission_planner_shows_20() {
             .warnings()
             .is_empty()
     );
+}
+
+/// With more than 20 servos not one name each fits: the advice is a per-servo list for the
+/// servos that matter, none for the others, and that advice, taken, leaves no warning.
+#[test]
+fn more_than_20_servos_are_advised_a_per_servo_choice_that_fits() {
+    let named = |cfg: &Config| -> Vec<String> {
+        let w = cfg.warnings();
+        w.into_iter()
+            .filter(|w| w.contains("NAMED_VALUE_FLOAT"))
+            .collect()
+    };
+    let cfg = Config::parse(&servos(32, ""), "t.toml").unwrap();
+    let warnings = named(&cfg);
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    let w = &warnings[0];
+    assert!(
+        w.contains("32 servos send 128 NAMED_VALUE_FLOAT names"),
+        "{w}"
+    );
+    assert!(!w.contains("at most 0"), "{w}");
+    assert!(w.contains("named_values = []"), "{w}");
+    assert!(w.contains("in their [[servo]] table"), "{w}");
+    // Taken: none by default, position for the first 20.
+    let mut taken = servos(32, "named_values = []");
+    for i in 1..=20 {
+        taken = taken.replacen(
+            &format!("name = \"s{i}\"\n"),
+            &format!("name = \"s{i}\"\nnamed_values = [\"pos\"]\n"),
+            1,
+        );
+    }
+    let cfg = Config::parse(&taken, "t.toml").unwrap();
+    assert!(named(&cfg).is_empty(), "{:?}", named(&cfg));
+    assert_eq!(
+        cfg.servos[0].named_values(&cfg.telemetry),
+        [Quantity::Position]
+    );
+    assert!(cfg.servos[20].named_values(&cfg.telemetry).is_empty());
+    // One more servo with a name is over again.
+    let over = taken.replacen(
+        "name = \"s21\"\n",
+        "name = \"s21\"\nnamed_values = [\"tmp\"]\n",
+        1,
+    );
+    assert_eq!(named(&Config::parse(&over, "t.toml").unwrap()).len(), 1);
+    // A bad quantity in a servo's list is refused, naming it.
+    let bad = servos(2, "").replacen(
+        "name = \"s1\"\n",
+        "name = \"s1\"\nnamed_values = [\"rpm\"]\n",
+        1,
+    );
+    let e = Config::parse(&bad, "t.toml").unwrap_err().to_string();
+    assert!(e.contains("\"rpm\" is not a quantity"), "{e}");
 }

@@ -1144,6 +1144,25 @@ fn the_mapping_chooses_the_named_quantities() {
     );
 }
 
+#[test]
+fn a_servo_with_a_list_of_its_own_sends_that_list_and_the_others_the_telemetry_list() {
+    let t0 = Instant::now();
+    let mapping = MAPPING
+        .replace("[telemetry]", "[telemetry]\nnamed_values = []")
+        .replace(
+            "label = \"ail_r\"",
+            "label = \"ail_r\"\nnamed_values = [\"cur\", \"pos\"]",
+        );
+    let mut c = BridgeCore::new(Config::parse(&mapping, "t.toml").unwrap(), t0);
+    let mut names: Vec<String> = named(&sent_for(&mut c, t0, 1, 3, |_| online(0.0)))
+        .into_iter()
+        .map(|(n, _)| n)
+        .collect();
+    names.sort();
+    names.dedup();
+    assert_eq!(names, ["ail_r_cur", "ail_r_pos"]);
+}
+
 /// Bytes on the wire of MAVLink 2 frames.
 fn wire_bytes(out: &[MavMessage]) -> usize {
     let header = MavHeader::default();

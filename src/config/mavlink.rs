@@ -509,6 +509,34 @@ impl MavlinkConfig {
     }
 }
 
+/// A `named_values` list (of `[telemetry]` or of a `[[servo]]`): each quantity once, in the
+/// order written.
+pub(crate) fn quantities(
+    list: &Spanned<Vec<Spanned<String>>>,
+    scope: &Scope<'_>,
+) -> Result<Vec<Quantity>, ConfigError> {
+    let mut out = Vec::new();
+    for name in list.get_ref() {
+        let key = name.get_ref().trim();
+        let q = Quantity::ALL
+            .into_iter()
+            .find(|q| q.key() == key)
+            .ok_or_else(|| {
+                scope.error_on(
+                    name,
+                    "named_values",
+                    format!(
+                        "\"{key}\" is not a quantity; use \"pos\" (position), \"cur\" (current), \"tmp\" (temperature) or \"vlt\" (voltage)"
+                    ),
+                )
+            })?;
+        if !out.contains(&q) {
+            out.push(q);
+        }
+    }
+    Ok(out)
+}
+
 impl TelemetryConfig {
     pub(crate) fn from_raw(raw: &RawTelemetry, scope: &Scope<'_>) -> Result<Self, ConfigError> {
         let default = TelemetryConfig::default();
@@ -518,28 +546,7 @@ impl TelemetryConfig {
         };
         let named_values = match &raw.named_values {
             None => default.named_values.clone(),
-            Some(list) => {
-                let mut out = Vec::new();
-                for name in list.get_ref() {
-                    let key = name.get_ref().trim();
-                    let q = Quantity::ALL
-                        .into_iter()
-                        .find(|q| q.key() == key)
-                        .ok_or_else(|| {
-                            scope.error_on(
-                                name,
-                                "named_values",
-                                format!(
-                                    "\"{key}\" is not a quantity; use \"pos\" (position), \"cur\" (current), \"tmp\" (temperature) or \"vlt\" (voltage)"
-                                ),
-                            )
-                        })?;
-                    if !out.contains(&q) {
-                        out.push(q);
-                    }
-                }
-                out
-            }
+            Some(list) => quantities(list, scope)?,
         };
         let esc_index_base = match &raw.esc_index_base {
             None => default.esc_index_base,

@@ -38,6 +38,7 @@
 //! | | `max_force_percent` | none (servo's own) | Max Force set at start, 1–100 |
 //! | | `failsafe` | `"hold"` | `"hold"`, `"off"`, `"brake"` or a position in mm |
 //! | | `actuator` | none | also follow MAV_CMD_DO_SET_ACTUATOR actuator 1–126 sent to the bridge |
+//! | | `named_values` | `[telemetry]`'s | this servo's NAMED_VALUE_FLOAT quantities (`[]`: none), for more servos than a ground station shows names |
 //!
 //! Reading a file never panics: a garbled or impossible file is refused with a [`ConfigError`]
 //! that names the file, line, column, table, key and reason. Unknown keys are refused, so a typo

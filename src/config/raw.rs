@@ -113,4 +113,5 @@ pub(crate) struct RawServo {
     pub max_force_percent: Option<Spanned<i64>>,
     pub failsafe: Option<Spanned<toml::Value>>,
     pub actuator: Option<Spanned<i64>>,
+    pub named_values: Option<Spanned<Vec<Spanned<String>>>>,
 }

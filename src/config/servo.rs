@@ -9,6 +9,7 @@
 
 use super::bus::check_name;
 use super::error::{ConfigError, Scope};
+use super::mavlink::{Quantity, TelemetryConfig, quantities};
 use super::raw::RawServo;
 use crate::protocol::{MmCenti, Ms10, Percent, PositionLimits, ServoId};
 use std::fmt;
@@ -147,9 +148,18 @@ pub struct ServoConfig {
     /// actuator n is param ((n − 1) mod 6) + 1 of the command whose param 7 (index) is
     /// (n − 1) div 6, so actuators 1–6 are params 1–6 of index 0. See [`Self::map_normalized`].
     pub actuator: Option<u8>,
+    /// The quantities its NAMED_VALUE_FLOATs carry; `None`: `[telemetry] named_values`.
+    pub named_values: Option<Vec<Quantity>>,
 }
 
 impl ServoConfig {
+    /// The quantities this servo's NAMED_VALUE_FLOATs carry: its own list, else `telemetry`'s.
+    pub fn named_values<'a>(&'a self, telemetry: &'a TelemetryConfig) -> &'a [Quantity] {
+        self.named_values
+            .as_deref()
+            .unwrap_or(&telemetry.named_values)
+    }
+
     /// The position for a PWM output of `us` µs, or `None` for "no output" (the servo holds):
     /// `us` is 0, 65535 or outside the channel's PWM range.
     pub fn map_pwm(&self, us: u16) -> Option<MmCenti> {
@@ -302,6 +312,12 @@ impl ServoConfig {
             ),
         };
 
+        let named_values = raw
+            .named_values
+            .as_ref()
+            .map(|list| quantities(list, scope))
+            .transpose()?;
+
         Ok(ServoConfig {
             name,
             label,
@@ -315,6 +331,7 @@ impl ServoConfig {
             max_force_percent,
             failsafe,
             actuator,
+            named_values,
         })
     }
 }
@@ -541,6 +558,7 @@ mod tests {
             max_force_percent: None,
             failsafe: FailsafeAction::Hold,
             actuator: None,
+            named_values: None,
         }
     }
 

@@ -159,23 +159,45 @@ fn px4_port_1_channels(cfg: &Config) -> Option<String> {
     ))
 }
 
-/// Mission Planner shows at most 20 NAMED_VALUE_FLOAT names.
+/// Mission Planner shows at most 20 NAMED_VALUE_FLOAT names. The advice is one that fits: a
+/// count per servo while one or more each fits, else a list for the servos that matter and
+/// none for the rest (a servo's own `named_values`), ESC_INFO carrying every servo anyway.
 fn mission_planner_names(cfg: &Config) -> Option<String> {
     let t = &cfg.telemetry;
     if !t.named_value_float {
         return None;
     }
-    let names = cfg.servos.len() * t.named_values.len();
+    let names: usize = cfg.servos.iter().map(|s| s.named_values(t).len()).sum();
     if names <= MISSION_PLANNER_NAMED_VALUES {
         return None;
     }
-    let per_servo = t.named_values.len();
-    let fit = MISSION_PLANNER_NAMED_VALUES / cfg.servos.len().max(1);
+    let servos = cfg.servos.len();
+    let said = format!(
+        "warning: {servos} servos send {names} NAMED_VALUE_FLOAT names; Mission Planner shows \
+         the first {MISSION_PLANNER_NAMED_VALUES} to arrive only (fewer when the autopilot sends \
+         names of its own)."
+    );
+    let esc = "QGroundControl's ESC indicator (esc = true, ESC_INFO/ESC_STATUS) still shows \
+               every servo's current, temperature and voltage.";
+    let fit = MISSION_PLANNER_NAMED_VALUES / servos.max(1);
+    if fit >= 1 {
+        return Some(format!(
+            "{said} Choose at most {fit} per servo with [telemetry] named_values (e.g. \
+             named_values = [\"pos\"]), or a list of its own in the [[servo]] tables that \
+             matter; {esc}"
+        ));
+    }
+    let example: Vec<&str> = cfg
+        .servos
+        .iter()
+        .take(MISSION_PLANNER_NAMED_VALUES)
+        .map(|s| s.name.as_str())
+        .collect();
     Some(format!(
-        "warning: {} servos × {per_servo} quantities = {names} NAMED_VALUE_FLOAT names; Mission \
-         Planner shows the first {MISSION_PLANNER_NAMED_VALUES} only. Choose at most {fit} per \
-         servo with [telemetry] named_values (e.g. named_values = [\"pos\", \"tmp\"]); \
-         QGroundControl's ESC indicator (esc = true) still shows current, temperature and voltage.",
-        cfg.servos.len()
+        "{said} Not even one name per servo fits: set [telemetry] named_values = [] and give \
+         at most {MISSION_PLANNER_NAMED_VALUES} servos that matter a list of their own in \
+         their [[servo]] table (e.g. named_values = [\"pos\"] for {} …), or set \
+         named_value_float = false; {esc}",
+        example[..example.len().min(3)].join(", ")
     ))
 }

@@ -119,7 +119,7 @@ impl TelemetrySchedule {
     ) {
         let refresh = Duration::from_secs(NAMED_VALUE_REFRESH_S);
         for ((servo, report), sent) in cfg.servos.iter().zip(reports).zip(&mut self.sent) {
-            for &q in &cfg.telemetry.named_values {
+            for &q in servo.named_values(&cfg.telemetry) {
                 let Some(value) = telemetry::quantity(report, q) else {
                     continue;
                 };
