@@ -510,16 +510,19 @@ const HEALTHY: Synth = Synth {
     rise_c: 4,
 };
 
-/// Flight `n` (0-based) of "flap": 60 s of a 10 mm/s triangle (0 → +10 → −10 → 0 mm, 4 s),
-/// then 2 s holding at 0, again and again; telemetry every 20 ms. The current is `moving_a`
-/// for a sample whose position changed since the one before, else `holding_a`. The ambient
-/// temperature (the start) differs by up to 2 °C from flight to flight.
+/// Flight `n` (0-based) of "flap", one a day: 60 s of a 10 mm/s triangle (0 → +10 → −10 →
+/// 0 mm, 4 s), then 2 s holding at 0, again and again; telemetry every 20 ms. The current is
+/// `moving_a` for a sample whose position changed since the one before, else `holding_a`. The
+/// ambient temperature (the start) differs by up to 2 °C from flight to flight. Every request
+/// was answered.
 fn synth_flight(dir: &Path, n: usize, s: Synth) -> PathBuf {
+    synth_flight_at(dir, n, FIRST_FLIGHT_NS + n as i64 * NS_PER_DAY, s)
+}
+
+/// [`synth_flight`] starting at `start_ns`.
+fn synth_flight_at(dir: &Path, n: usize, start_ns: i64, s: Synth) -> PathBuf {
     let table = vec![RecordServo::new("flap", "wing", 5, 7)];
-    let mut bytes = encode_header(&RecordHeader::new(
-        FIRST_FLIGHT_NS + n as i64 * NS_PER_DAY,
-        table,
-    ));
+    let mut bytes = encode_header(&RecordHeader::new(start_ns, table));
     let mut put = |t_us: u64, body: RecordBody| {
         encode_record(&Record { t_us, body }, &mut bytes);
     };
@@ -565,6 +568,14 @@ fn synth_flight(dir: &Path, n: usize, s: Synth) -> PathBuf {
             },
         );
     }
+    put(
+        60_000_000,
+        RecordBody::Replies {
+            servo: 0,
+            answered: 3000,
+            missed: 0,
+        },
+    );
     put(60_000_000, RecordBody::End { continued: false });
     let path = dir.join(format!("flap{:02}.lj9rec", n + 1));
     std::fs::write(&path, &bytes).unwrap();
@@ -822,4 +833,110 @@ fn inspect_counts_the_marked_flights_since_the_last_healthy_one() {
     assert_eq!(marks(&s).len(), 4, "{text}");
     assert!(text.contains("since flight 8\n"), "{text}");
     assert_eq!(serde_json::to_value(&s).unwrap()["verdict"], "inspect");
+}
+
+// ---------------------------------------------------------------------------------------------
+// The page
+
+/// The value of attribute `name` in the tag `tag`.
+fn attribute<'a>(tag: &'a str, name: &str) -> Option<&'a str> {
+    let at = tag.find(&format!(" {name}=\""))? + name.len() + 3;
+    tag[at..].split('"').next()
+}
+
+/// The `<g class="panel">` of `figure` in `svg`.
+fn panel<'a>(svg: &'a str, figure: &str) -> &'a str {
+    let start = svg
+        .find(&format!(r#"<g class="panel" data-panel="{figure}">"#))
+        .unwrap_or_else(|| panic!("no panel {figure}"));
+    let end = svg[start..].find("</g>").unwrap() + start;
+    &svg[start..end]
+}
+
+/// The labels of the panel's value axis (its grid lines' texts, at the left of the frame).
+fn y_labels(panel: &str) -> Vec<String> {
+    panel
+        .split("<text ")
+        .skip(1)
+        .filter(|t| t.contains(r#"text-anchor="end""#) && !t.contains("fill="))
+        .map(|t| t[t.find('>').unwrap() + 1..t.find("</text>").unwrap()].to_string())
+        .collect()
+}
+
+/// Ten flights on one day, ten minutes apart: each at its own x, in flight order, its date and
+/// time in its tooltip.
+#[test]
+fn the_page_plots_flights_by_number_so_that_flights_of_one_day_do_not_stack() {
+    let dir = TempDir::new("trend-one-day");
+    for n in 0..10 {
+        synth_flight_at(
+            dir.path(),
+            n,
+            FIRST_FLIGHT_NS + n as i64 * 600_000_000_000,
+            HEALTHY,
+        );
+    }
+    let (t, _) = trend(&files_of(dir.path()), &[]);
+    let page = trend_page(&t);
+    let friction = panel(&page, "friction");
+    let circles: Vec<(usize, f64, &str)> = friction
+        .split("<circle ")
+        .skip(1)
+        .map(|c| {
+            let n: usize = attribute(c, "data-flight").unwrap().parse().unwrap();
+            let cx: f64 = attribute(c, "cx").unwrap().parse().unwrap();
+            let title = &c[c.find("<title>").unwrap() + 7..c.find("</title>").unwrap()];
+            (n, cx, title)
+        })
+        .collect();
+    assert_eq!(circles.len(), 10, "{friction}");
+    for (k, w) in circles.windows(2).enumerate() {
+        assert_eq!(w[0].0, k + 1);
+        // At least a few pixels apart, in order.
+        assert!(w[1].1 > w[0].1 + 20.0, "{circles:?}");
+    }
+    // Evenly spaced: flight numbers, not times.
+    let gaps: Vec<f64> = circles.windows(2).map(|w| w[1].1 - w[0].1).collect();
+    assert!(gaps.iter().all(|g| (g - gaps[0]).abs() < 0.2), "{gaps:?}");
+    assert!(
+        circles[3].2.starts_with("flight 4, 2026-01-01 08:30:"),
+        "{circles:?}"
+    );
+    assert!(
+        page.contains(">flight</text>") || page.contains(">flight ("),
+        "{page}"
+    );
+}
+
+/// Nothing but zeros (no bad reply in any flight): an axis from 0 up with round labels, not
+/// one a few millionths wide.
+#[test]
+fn a_series_of_zeros_gets_an_axis_that_reads_well() {
+    let (s, text) = flap_trend(6, &[], HEALTHY);
+    assert!(
+        s.flights.iter().all(|f| f.bad_replies == Some(0.0)),
+        "{text}"
+    );
+    let svg = lj9da_bridge::record::trend_html::servo_trend_svg(&s);
+    let bad = panel(&svg, "bad replies");
+    let labels = y_labels(bad);
+    assert_eq!(labels, ["0.0", "0.2", "0.4", "0.6", "0.8", "1.0"], "{bad}");
+    // The points sit on the 0 line, inside the frame.
+    let frame = &bad[bad.find("<rect ").unwrap()..];
+    let top: f64 = attribute(frame, "y").unwrap().parse().unwrap();
+    let height: f64 = attribute(frame, "height").unwrap().parse().unwrap();
+    for c in bad.split("<circle ").skip(1) {
+        let cy: f64 = attribute(c, "cy").unwrap().parse().unwrap();
+        assert!(
+            cy > top + 2.0 && cy < top + height - 2.0,
+            "{cy} in {top}+{height}"
+        );
+    }
+    // A constant series that is not zero: its value ± 10 %, labelled at round values.
+    let labels = y_labels(panel(&svg, "holding current"));
+    assert!(labels.len() >= 3, "{labels:?}");
+    for l in &labels {
+        let v: f64 = l.parse().unwrap();
+        assert!(l.len() <= 5 && v > 0.0 && v < 0.2, "{labels:?}");
+    }
 }

@@ -50,7 +50,7 @@ pub enum RecordCommand {
         /// given more than once.
         #[arg(long, value_name = "[SERVO=]DATE")]
         since: Vec<Since>,
-        /// Also write a page with each figure against the flight date.
+        /// Also write a page with each figure flight by flight (in date order).
         #[arg(long, value_name = "FILE")]
         html: Option<PathBuf>,
     },

@@ -319,8 +319,9 @@ pub fn servo_svg(rec: &Recording, servo: usize, title: &str) -> String {
         area.y_grid(&mut svg, range, 5.0);
         let last = i == panels.len() - 1;
         for &t in &x_ticks {
-            let label = last.then(|| tick_label(t, x_step));
-            area.x_tick(&mut svg, x_of(t), label.as_deref());
+            let label = tick_label(t, x_step);
+            let labels: &[&str] = if last { &[&label] } else { &[] };
+            area.x_tick(&mut svg, x_of(t), labels);
         }
         area.title(&mut svg, panel.title);
         for &(v, label, color) in &panel.references {

@@ -65,6 +65,28 @@ pub(crate) fn tick_label(v: f64, step: f64) -> String {
     format!("{v:.decimals$}")
 }
 
+/// The range an axis shows for values from `lo` to `hi`: padded on each side by `share` of
+/// its span, or by `min_share` of the top's magnitude (at least 0.001) if that is more. A flat
+/// range — a constant series, which would otherwise get an axis a few millionths wide labelled
+/// with as many decimals — is first widened to its value ± 10 %, and a series of zeros to 0–1.
+/// No values (`lo` or `hi` not finite): 0 to 1.
+pub(crate) fn axis_range(lo: f64, hi: f64, share: f64, min_share: f64) -> (f64, f64) {
+    let (lo, hi) = if !lo.is_finite() || !hi.is_finite() {
+        (0.0, 1.0)
+    } else if hi - lo <= lo.abs().max(hi.abs()) * 1e-9 {
+        let v = (lo + hi) / 2.0;
+        if v == 0.0 {
+            (0.0, 1.0)
+        } else {
+            (v - v.abs() * 0.1, v + v.abs() * 0.1)
+        }
+    } else {
+        (lo, hi)
+    };
+    let pad = ((hi - lo) * share).max(hi.abs().max(1e-3) * min_share);
+    (lo - pad, hi + pad)
+}
+
 /// A polyline through `points` (already in SVG units): `<polyline {attributes} points="…"/>`.
 pub(crate) fn polyline(
     svg: &mut String,
@@ -143,18 +165,20 @@ impl Area {
         }
     }
 
-    /// A vertical grid line at `x`, with its `label` under the area (none: the line alone).
-    pub fn x_tick(&self, svg: &mut String, x: f64, label: Option<&str>) {
+    /// A vertical grid line at `x`, with `labels` under the area, one a line, the first
+    /// darker (none: the line alone).
+    pub fn x_tick(&self, svg: &mut String, x: f64, labels: &[&str]) {
         let (top, bottom) = (self.top, self.bottom());
         let _ = write!(
             svg,
             r##"<line x1="{x:.1}" y1="{top:.1}" x2="{x:.1}" y2="{bottom:.1}" stroke="#f2f2f2"/>"##
         );
-        if let Some(label) = label {
+        for (k, label) in labels.iter().enumerate() {
             let _ = write!(
                 svg,
-                r##"<text x="{x:.1}" y="{:.1}" text-anchor="middle" fill="#555">{}</text>"##,
-                bottom + 16.0,
+                r##"<text x="{x:.1}" y="{:.1}" text-anchor="middle" fill="{}">{}</text>"##,
+                bottom + 16.0 + 14.0 * k as f64,
+                if k == 0 { "#555" } else { "#999" },
                 escape(label)
             );
         }
@@ -188,6 +212,23 @@ impl Area {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_flat_axis_is_its_value_give_or_take_a_tenth_and_zeros_are_0_to_1() {
+        // Not flat: padded by the share of the span, or of the top's size if more.
+        let close = |(a, b): (f64, f64), (c, d): (f64, f64)| {
+            assert!((a - c).abs() < 1e-12 && (b - d).abs() < 1e-12, "{a}..{b}");
+        };
+        close(axis_range(2.0, 4.0, 0.1, 0.0), (1.8, 4.2));
+        close(axis_range(100.0, 101.0, 0.1, 0.02), (97.98, 103.02));
+        close(axis_range(0.07, 0.07, 0.0, 0.0), (0.063, 0.077));
+        close(axis_range(-5.0, -5.0, 0.0, 0.0), (-5.5, -4.5));
+        close(axis_range(0.0, 0.0, 0.08, 0.02), (-0.08, 1.08));
+        close(
+            axis_range(f64::INFINITY, f64::NEG_INFINITY, 0.0, 0.0),
+            (0.0, 1.0),
+        );
+    }
 
     #[test]
     fn ticks_are_round_and_labelled_with_the_decimals_their_step_needs() {

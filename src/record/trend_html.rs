@@ -1,5 +1,9 @@
-//! The page of `record trend --html`: per servo, each wear figure against the flight date, the
-//! band from its baseline to the threshold that marks a flight, and the flights that crossed it.
+//! The page of `record trend --html`: per servo, each wear figure against the flight number
+//! (the flights in date order, so that ten flights of one day do not stack on one date; each
+//! point's tooltip gives its date and time, and the last panel's flight numbers their dates),
+//! the band from its baseline to the threshold that marks a flight, and the flights that
+//! crossed it. A figure that is the same in every flight (no bad reply at all, say) gets an
+//! axis around its value (0 to 1 for zeros), not one a few millionths wide.
 //! One file that opens in any browser without a network, as `record plot`'s page
 //! ([`super::page`]): inline SVG, and the same few lines of script to zoom (wheel), pan (drag)
 //! and reset (double click).
@@ -11,7 +15,7 @@
 
 use super::clock::Utc;
 use super::page::ZOOM_SCRIPT;
-use super::svg::{Area, escape, nice_step, polyline, ticks};
+use super::svg::{Area, axis_range, escape, nice_step, polyline, ticks};
 use super::trend::{
     ALARM_C, Flight, HOLDING_MIN_RISE_A, MARGIN_MIN_DROP_C, RISE_LIMIT, ServoTrend, Trend,
 };
@@ -27,7 +31,6 @@ const PANEL_HEIGHT: f64 = 130.0;
 const PANEL_GAP: f64 = 40.0;
 const BOTTOM: f64 = 40.0;
 const PLOT_WIDTH: f64 = WIDTH - LEFT - RIGHT;
-const NS_PER_DAY: f64 = 86_400e9;
 
 /// One figure's panel.
 struct Panel {
@@ -108,15 +111,11 @@ fn panels(s: &ServoTrend) -> Vec<Panel> {
 /// The SVG of one servo's figures.
 pub fn servo_trend_svg(s: &ServoTrend) -> String {
     let panels = panels(s);
-    let dates: Vec<i64> = s.flights.iter().map(|f| f.run_start_unix_ns).collect();
-    let (lo, hi) = (
-        dates.iter().copied().min().unwrap_or(0),
-        dates.iter().copied().max().unwrap_or(0),
-    );
-    // Days since the first flight, padded so that the first and last points are inside.
-    let span = ((hi - lo) as f64 / NS_PER_DAY).max(1.0);
-    let (d0, d1) = (-span * 0.03, span * 1.03);
-    let x_of = |ns: i64| LEFT + (((ns - lo) as f64 / NS_PER_DAY) - d0) / (d1 - d0) * PLOT_WIDTH;
+    // Flight numbers 1..=n, padded so that the first and last points are inside.
+    let n = s.flights.len().max(1) as f64;
+    let pad = ((n - 1.0) * 0.03).max(0.5);
+    let (d0, d1) = (1.0 - pad, n + pad);
+    let x_of = |flight: usize| LEFT + (flight as f64 - d0) / (d1 - d0) * PLOT_WIDTH;
     let height = TOP + panels.len() as f64 * (PANEL_HEIGHT + PANEL_GAP) + BOTTOM;
     let mut svg = String::with_capacity(32 * 1024);
     let _ = writeln!(
@@ -128,11 +127,12 @@ pub fn servo_trend_svg(s: &ServoTrend) -> String {
         svg,
         r##"<text x="{LEFT}" y="20" fill="#555">shaded: from the median of the first flights to the threshold that marks a flight; red: flights beyond it; hollow: baseline flights</text>"##
     );
-    // Date ticks: whole days, at most about ten.
-    let step_days = nice_step(d1 - d0, 10.0).max(1.0);
-    let x_ticks: Vec<f64> = ticks(d0.max(0.0), d1, (d1 - d0) / step_days)
+    // Flight ticks: whole flights, at most about ten.
+    let step = nice_step(d1 - d0, 10.0).max(1.0);
+    let x_ticks: Vec<usize> = ticks(d0.max(1.0), n, (d1 - d0) / step)
         .into_iter()
-        .filter(|d| d.fract() == 0.0)
+        .filter(|d| d.fract() == 0.0 && *d >= 1.0)
+        .map(|d| d as usize)
         .collect();
     for (k, p) in panels.iter().enumerate() {
         let area = Area {
@@ -147,22 +147,31 @@ pub fn servo_trend_svg(s: &ServoTrend) -> String {
             .map(|x| x.2)
             .chain(p.band.iter().flat_map(|b| [b.0, b.1]))
             .chain(p.reference.iter().map(|r| r.0));
-        let (mut vlo, mut vhi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+        let (vlo, vhi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
             (a.min(v), b.max(v))
         });
-        if !vlo.is_finite() {
-            (vlo, vhi) = (0.0, 1.0);
-        }
-        let pad = ((vhi - vlo) * 0.08).max(vhi.abs().max(1e-3) * 0.02);
-        let range = (vlo - pad, vhi + pad);
+        let range = axis_range(vlo, vhi, 0.08, 0.02);
         let y_of = |v: f64| area.y_of(v, range);
         let _ = writeln!(svg, r#"<g class="panel" data-panel="{}">"#, p.figure);
         area.title(&mut svg, p.title);
         area.frame(&mut svg);
         area.y_grid(&mut svg, range, 4.0);
-        for &d in &x_ticks {
-            let ns = lo + (d * NS_PER_DAY) as i64;
-            area.x_tick(&mut svg, x_of(ns), Some(&Utc::from_unix_ns(ns).date()));
+        let last = k == panels.len() - 1;
+        for &flight in &x_ticks {
+            let number = flight.to_string();
+            let date = s.flights.get(flight - 1).map_or_else(String::new, |f| {
+                Utc::from_unix_ns(f.run_start_unix_ns).date()
+            });
+            let labels: &[&str] = if last { &[&number, &date] } else { &[&number] };
+            area.x_tick(&mut svg, x_of(flight), labels);
+        }
+        if last {
+            let _ = writeln!(
+                svg,
+                r##"<text x="{:.1}" y="{:.1}" text-anchor="middle" fill="#555">flight (in date order; a point's tooltip gives its date and time)</text>"##,
+                LEFT + PLOT_WIDTH / 2.0,
+                area.bottom() + 48.0
+            );
         }
         if let Some((a, b)) = p.band {
             let (ya, yb) = (y_of(a), y_of(b));
@@ -183,7 +192,7 @@ pub fn servo_trend_svg(s: &ServoTrend) -> String {
             polyline(
                 &mut svg,
                 &format!(r#"fill="none" stroke="{}" stroke-width="1.2""#, p.color),
-                p.points.iter().map(|&(_, ns, v, _)| (x_of(ns), y_of(v))),
+                p.points.iter().map(|&(n, _, v, _)| (x_of(n), y_of(v))),
             );
         }
         for &(n, ns, v, cross) in &p.points {
@@ -199,7 +208,7 @@ pub fn servo_trend_svg(s: &ServoTrend) -> String {
                 svg,
                 r#"<circle class="{class}" data-figure="{}" data-flight="{n}" cx="{:.1}" cy="{:.1}" r="{}" fill="{fill}" stroke="{stroke}" stroke-width="1.5"><title>flight {n}, {}: {v:.3}</title></circle>"#,
                 p.figure,
-                x_of(ns),
+                x_of(n),
                 y_of(v),
                 if cross { 4.5 } else { 3.5 },
                 Utc::from_unix_ns(ns).minute()
@@ -227,8 +236,8 @@ pub fn trend_page(t: &Trend) -> String {
     let _ = writeln!(html, "<h1>Servo wear across flights</h1>");
     let _ = writeln!(
         html,
-        "<p>Each servo's figures against the flight date. Wheel: zoom; drag: pan; double \
-         click: all flights.</p>"
+        "<p>Each servo's figures flight by flight, in date order (a point's tooltip gives its \
+         date and time). Wheel: zoom; drag: pan; double click: all flights.</p>"
     );
     let _ = writeln!(html, "<pre>{}</pre>", escape(&t.to_string()));
     for s in &t.servos {
