@@ -7,6 +7,7 @@
 //! - [`config`]: mapping files (TOML) and the autopilot-output → servo-position mapping.
 //! - [`mavlink`]: the MAVLink side: outputs in, servo health out.
 //! - [`runtime`]: `lj9da-bridge run`, the tokio shell joining MAVLink and the buses.
+//! - [`ui`]: how a running bridge and the servos are shown: live view, plain table, terminal.
 //! - [`serial`]: serial ports: a UART's RS485 mode, the list of ports (`lj9da-bridge ports`).
 //! - [`simulation`]: `lj9da-bridge sitl`, the whole chain with simulated servos and autopilot.
 
@@ -22,4 +23,4 @@ pub mod record;
 pub mod runtime;
 pub mod serial;
 pub mod simulation;
-pub mod terminal;
+pub mod ui;

@@ -100,7 +100,7 @@ fn init_logging(live_view: bool) {
     use std::io::IsTerminal;
     let fmt = tracing_subscriber::fmt().with_env_filter(filter);
     if live_view {
-        fmt.with_writer(lj9da_bridge::terminal::LogWriter::default)
+        fmt.with_writer(lj9da_bridge::ui::terminal::LogWriter::default)
             .with_ansi(false)
             .without_time()
             .with_target(false)

@@ -14,7 +14,7 @@ use super::set::{SetOptions, set};
 use super::settings::Setting;
 use crate::protocol::{BaudRate, ForceMode, MmCenti, Ms10, ServoId};
 use crate::serial::rs485::{MAX_DELAY_MS, Rs485Mode};
-use crate::terminal::{TextScreen, quit_key};
+use crate::ui::terminal::{TextScreen, quit_key};
 use clap::{Args, Subcommand, ValueEnum};
 use std::io::{BufRead, IsTerminal, Write};
 use std::path::PathBuf;

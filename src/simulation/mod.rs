@@ -4,11 +4,10 @@
 //! table of what the bridge sees and its telemetry served to a ground station.
 
 pub mod autopilot;
-pub mod live;
-pub mod table;
 
 use crate::config::Config;
 use crate::runtime::{self, BridgeView, RunError};
+use crate::ui::{live, table};
 use lj9da_sim::{SimBus, SimConfig};
 use std::collections::HashMap;
 use std::io::IsTerminal;

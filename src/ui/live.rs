@@ -28,7 +28,7 @@ use std::collections::{HashMap, VecDeque};
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
 
-use crate::terminal::{Restore, log_lines, quit_pressed};
+use crate::ui::terminal::{Restore, log_lines, quit_pressed};
 
 /// Samples kept for a servo's history (one per redraw: 12 s), the most a history shows.
 pub const HISTORY: usize = 60;
@@ -707,7 +707,7 @@ mod tests {
         );
         assert_eq!(m.servos[0].state, "Degraded 23%");
         assert!(
-            crate::simulation::table::render(&BridgeView {
+            crate::ui::table::render(&BridgeView {
                 servos: vec![s.clone()],
                 ..Default::default()
             })
