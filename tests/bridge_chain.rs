@@ -2,8 +2,10 @@
 //! simulated ArduPilot-like autopilot and a ground station on real UDP sockets with real
 //! MAVLink framing.
 
+mod bus_support;
 mod common;
 
+use bus_support::{assert_line_kept, talk_overs};
 use common::{Chain, free_udp_port};
 use lj9da_bridge::bus::Health;
 use lj9da_bridge::record::{RecordBody, Recording, read_record, summary};
@@ -519,4 +521,44 @@ async fn outputs_slower_than_asked_are_shown_recorded_and_said_once() {
             .any(|(_, t)| t.starts_with("output rate received: SERVO_OUTPUT_RAW port 0")),
         "the rate received is in the record: {events:#?}"
     );
+}
+
+/// The chain at the production allowance (no `turnaround_ms`: the bus master's own 2 ms), the
+/// timing the bridge flies with, where the other chain tests give the line 20 ms for a shared
+/// machine. Judged on what holds on any machine: every servo comes online and follows the
+/// autopilot, and the line is kept — never talked over, every request answered — strictly
+/// where the simulator kept time; where it says it ran late (a busy machine), each talked-over
+/// reply must be one the bridge had already given up on (see `bus_support::assert_line_kept`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn at_the_production_allowance_the_line_is_kept_and_the_servos_follow() {
+    let mapping = FOUR_SERVOS.replace("turnaround_ms = 20\n", "");
+    assert!(!mapping.contains("turnaround_ms"));
+    let chain = Chain::start(&mapping, true).await;
+    let sim = chain.sims[0].handle();
+    let line = sim.subscribe();
+    chain
+        .wait_view("every servo online", SECS(10), all_online)
+        .await;
+    // Five seconds of the autopilot's sweep: every servo keeps up with its goal.
+    let deadline = std::time::Instant::now() + SECS(5);
+    let mut followed = 0;
+    while std::time::Instant::now() < deadline {
+        let lag: Vec<f32> = (1..=4u8)
+            .map(|id| sim.snapshot(id).unwrap())
+            .map(|s| (s.goal_mm - s.position_mm).abs())
+            .collect();
+        if lag.iter().all(|l| *l < 3.0) {
+            followed += 1;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert!(followed > 0, "the servos never kept within 3 mm of their goals");
+    let status = chain.view.borrow().buses[0].clone();
+    for s in &status.servos {
+        assert!(s.telemetry_count > 10, "servo {} barely read: {s:?}", s.id);
+    }
+    let strict = assert_line_kept(&sim.stats(), &status, &talk_overs(&line));
+    println!("line judged strictly: {strict}");
+    assert!(chain.autopilot.outputs_sent() > 100);
+    chain.stop().await;
 }
