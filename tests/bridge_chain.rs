@@ -552,7 +552,10 @@ async fn at_the_production_allowance_the_line_is_kept_and_the_servos_follow() {
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    assert!(followed > 0, "the servos never kept within 3 mm of their goals");
+    assert!(
+        followed > 0,
+        "the servos never kept within 3 mm of their goals"
+    );
     let status = chain.view.borrow().buses[0].clone();
     for s in &status.servos {
         assert!(s.telemetry_count > 10, "servo {} barely read: {s:?}", s.id);
