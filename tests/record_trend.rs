@@ -18,7 +18,7 @@ use lj9da_bridge::record::trend_html::trend_page;
 use lj9da_bridge::record::{Record, RecordBody, RecordLimits, Recorder, StatusFeed};
 use lj9da_sim::servo::memory_map::{FACTORY_ROM, ROM_START, reg};
 use lj9da_sim::servo::{Servo, ServoConfig};
-use lj9da_sim::{HostPacket, ShortPacket, SimBus, SimConfig, Wear};
+use lj9da_sim::{FrictionSpot, HostPacket, ShortPacket, SimBus, SimConfig, Wear};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -48,19 +48,34 @@ fn u16_at(registers: &[u8], at: usize) -> u16 {
     u16::from_le_bytes([registers[at], registers[at + 1]])
 }
 
-/// Flight `n` (0-based) of the four servos, with the given friction wear (A per mm/s) on each,
-/// written as a record file in `dir`. The flight: a sine sweep of ±10 mm (its amplitude a little
-/// different each flight) for 4 s, then 2 s holding at a fixed position, again and again;
-/// telemetry every 10 ms; the ambient temperature differs from flight to flight.
-fn fly(dir: &Path, n: usize, friction: [f64; 4]) -> PathBuf {
+/// Friction wear of `k` A per mm/s, both ways and over the whole stroke.
+fn friction(k: f64) -> Wear {
+    Wear {
+        friction_a_per_mm_s: k,
+        ..Wear::default()
+    }
+}
+
+const NO_WEAR: [Wear; 4] = [Wear {
+    friction_a_per_mm_s: 0.0,
+    friction_extend_a_per_mm_s: 0.0,
+    friction_spot: None,
+    stiff_spot: None,
+}; 4];
+
+/// Flight `n` (0-based) of the four servos, with the given wear on each, written as a record
+/// file in `dir`. The flight: a sine sweep of ±10 mm (its amplitude a little different each
+/// flight) for 4 s, then 2 s holding at 5 mm, again and again; telemetry every 13 ms; the
+/// ambient temperature differs from flight to flight.
+fn fly(dir: &Path, n: usize, wear: [Wear; 4]) -> PathBuf {
     let start = Instant::now();
     let table = servos();
     let ambient = 20.0 + (n * 7 % 10) as f64;
     let amplitude_centi = 1000.0 * (1.0 + 0.04 * (((n * 3) % 5) as f64 - 2.0) / 2.0);
     let mut sim: Vec<Servo> = table
         .iter()
-        .zip(friction)
-        .map(|(s, k)| {
+        .zip(wear)
+        .map(|(s, wear)| {
             let mut servo = Servo::new(
                 ServoConfig {
                     id: s.id,
@@ -71,13 +86,7 @@ fn fly(dir: &Path, n: usize, friction: [f64; 4]) -> PathBuf {
                 start,
             );
             write(&mut servo, start, s.id, reg::FORCE_ENABLE, &[1]);
-            servo.set_wear(
-                start,
-                Wear {
-                    friction_a_per_mm_s: k,
-                    stiff_spot: None,
-                },
-            );
+            servo.set_wear(start, wear);
             servo
         })
         .collect();
@@ -171,8 +180,8 @@ fn the_servo_whose_friction_rises_is_marked_from_the_flight_it_passes_the_thresh
     let new_dir = TempDir::new("trend-new");
     // The first five flights of both sets: no wear anywhere.
     for n in 0..5 {
-        fly(worn_dir.path(), n, [0.0; 4]);
-        fly(new_dir.path(), n, [0.0; 4]);
+        fly(worn_dir.path(), n, NO_WEAR);
+        fly(new_dir.path(), n, NO_WEAR);
     }
     let files = record_files(&[worn_dir.path().to_path_buf()]).unwrap();
     let (first, notes) = trend(&files, &[]);
@@ -190,8 +199,10 @@ fn the_servo_whose_friction_rises_is_marked_from_the_flight_it_passes_the_thresh
         / 1000.0;
     let rises = [0.08, 0.16, 0.40, 0.60, 0.80];
     for (k, rise) in rises.iter().enumerate() {
-        fly(worn_dir.path(), 5 + k, [0.0, 0.0, rise * base, 0.0]);
-        fly(new_dir.path(), 5 + k, [0.0; 4]);
+        let mut wear = NO_WEAR;
+        wear[2] = friction(rise * base);
+        fly(worn_dir.path(), 5 + k, wear);
+        fly(new_dir.path(), 5 + k, NO_WEAR);
     }
 
     let files = record_files(&[worn_dir.path().to_path_buf()]).unwrap();
@@ -419,13 +430,7 @@ async fn the_simulators_wear_knob_shows_in_a_recorded_run() {
         ..SimConfig::default()
     })
     .unwrap();
-    assert!(sim.handle().set_wear(
-        2,
-        Wear {
-            friction_a_per_mm_s: 0.01,
-            stiff_spot: None,
-        },
-    ));
+    assert!(sim.handle().set_wear(2, friction(0.01)));
     let table = vec![
         RecordServo::new("new", "sim", 1, 1),
         RecordServo::new("worn", "sim", 2, 2),
@@ -483,6 +488,104 @@ async fn the_simulators_wear_knob_shows_in_a_recorded_run() {
     // The run wrote its reply counts (format 1.2): a clean line.
     assert!(new.bad_replies.unwrap() < 0.05, "{text}");
     assert!(worn.peak_a.unwrap() > new.peak_a.unwrap(), "{text}");
+}
+
+/// Wear whose signature is not the friction figure's: friction that drags one way only, and
+/// friction over a 2 mm spot of the stroke only. The figure (Σ current / Σ speed while moving)
+/// sees the first at half its size — the same as friction half as strong both ways — and the
+/// second at the share of the travel that passes over the spot (some 14 % in these flights).
+/// docs/wear.md gives the figures.
+#[test]
+fn one_way_friction_shows_at_half_its_size_and_a_friction_spot_at_its_share_of_the_travel() {
+    let dir = TempDir::new("trend-signature");
+    for n in 0..5 {
+        fly(dir.path(), n, NO_WEAR);
+    }
+    let (first, _) = trend(&files_of(dir.path()), &[]);
+    // Each servo's friction figure, A per mm/s.
+    let base = |name: &str| servo(&first, name).baseline.friction_ma_per_mm_s.unwrap() / 1000.0;
+    let spot = |k: f64| Wear {
+        friction_spot: Some(FrictionSpot {
+            from_mm: 2.0,
+            to_mm: 4.0,
+            a_per_mm_s: k,
+        }),
+        ..Wear::default()
+    };
+    let wear = [
+        // While extending only, 80 % of the figure.
+        Wear {
+            friction_extend_a_per_mm_s: 0.8 * base("aileron_left"),
+            ..Wear::default()
+        },
+        // Over 2–4 mm only, 100 % of the figure.
+        spot(base("aileron_right")),
+        // Both ways, 40 %: as much friction work as the aileron's one way.
+        friction(0.4 * base("elevator")),
+        // Over 2–4 mm only, 300 %.
+        spot(3.0 * base("rudder")),
+    ];
+    for n in 5..10 {
+        fly(dir.path(), n, wear);
+    }
+    let (t, _) = trend(&files_of(dir.path()), &[]);
+    let text = t.to_string();
+    // Each worn flight's friction figure over the baseline, as a share of the wear's own size.
+    let seen = |name: &str, size: f64| -> Vec<f64> {
+        let s = servo(&t, name);
+        let b = s.baseline.friction_ma_per_mm_s.unwrap();
+        s.flights[5..]
+            .iter()
+            .map(|f| (f.friction_ma_per_mm_s.unwrap() / b - 1.0) / size)
+            .collect()
+    };
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let one_way = seen("aileron_left", 0.8);
+    let both_ways = seen("elevator", 0.4);
+    let small_spot = seen("aileron_right", 1.0);
+    let big_spot = seen("rudder", 3.0);
+    eprintln!(
+        "friction figure's rise as a share of the wear: one way {:.3}, both ways {:.3}, \
+         2 mm spot {:.3} and {:.3}",
+        mean(&one_way),
+        mean(&both_ways),
+        mean(&small_spot),
+        mean(&big_spot)
+    );
+    // One way: half, flight by flight the same as the same work both ways.
+    assert!((mean(&one_way) - 0.5).abs() < 0.05, "{one_way:?}");
+    for (a, b) in one_way.iter().zip(&both_ways) {
+        assert!(
+            (a * 0.8 - b * 0.4).abs() < 0.02,
+            "{one_way:?} {both_ways:?}"
+        );
+    }
+    // A spot: the share of the travel over it, whatever the friction there.
+    assert!(
+        mean(&small_spot) > 0.08 && mean(&small_spot) < 0.18,
+        "{small_spot:?}"
+    );
+    assert!(
+        (mean(&big_spot) - mean(&small_spot)).abs() < 0.03,
+        "{big_spot:?}"
+    );
+    // So: one-way friction of 80 % is marked, as 40 % both ways is; a spot as strong as the
+    // servo's whole friction figure is not (+13 %), one three times as strong is.
+    for (name, verdict) in [
+        ("aileron_left", Verdict::Inspect),
+        ("elevator", Verdict::Inspect),
+        ("aileron_right", Verdict::Ok),
+        ("rudder", Verdict::Inspect),
+    ] {
+        let s = servo(&t, name);
+        assert_eq!(s.verdict, verdict, "{name}: {text}");
+        if verdict == Verdict::Inspect {
+            assert!(
+                s.triggers.iter().any(|f| f.figure == "friction"),
+                "{name}: {text}"
+            );
+        }
+    }
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -22,7 +22,8 @@
 //!   the new path or the error.
 //! - Added: `SimBus::local_addr` (TCP), `SimHandle::{path, snapshots, set_voltage, set_ambient,
 //!   set_temperature, move_rod, set_host_baud, try_reconnect_port, set_wear}` ([`Wear`]: friction
-//!   current in proportion to speed, a stiff spot over part of the stroke).
+//!   current in proportion to speed — both ways, while extending only, or over a [`FrictionSpot`] —
+//!   and a stiff spot over part of the stroke).
 //!
 //! The same bus in virtual time, without I/O:
 //!
@@ -58,5 +59,5 @@ pub use fault::{Fault, FaultKind};
 pub use protocol::host_packet::{HostPacket, LongBlock, LongPacket, ShortPacket, SpecialCommand};
 pub use protocol::return_packet::ReturnPacket;
 pub use runtime::{SimBus, SimHandle};
-pub use servo::physics::{StiffSpot, Wear};
+pub use servo::physics::{FrictionSpot, StiffSpot, Wear};
 pub use servo::{Force, ServoSnapshot};

@@ -48,6 +48,7 @@ fn friction_draws_current_in_proportion_to_speed_and_heats_the_servo() {
         Wear {
             friction_a_per_mm_s: 0.004,
             stiff_spot: None,
+            ..Wear::default()
         },
     ));
     let [(new, new_c), (worn, worn_c)] = sweep(&mut bus, 60);
@@ -77,6 +78,7 @@ fn a_stiff_spot_loads_the_rod_over_its_part_of_the_stroke_only() {
             to_mm: 8.0,
             load_n: 100.0,
         }),
+        ..Wear::default()
     };
     bus.model.set_wear(bus.now, 1, spot);
     let holding_at = |bus: &mut VirtualBus, centi: i16| {

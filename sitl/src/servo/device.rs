@@ -587,7 +587,8 @@ impl Servo {
         };
     }
 
-    /// Wear from `now` on (friction current, a stiff spot); `Wear::default()` for none.
+    /// Wear from `now` on (friction current both ways, one way or over a spot; a stiff spot);
+    /// `Wear::default()` for none.
     pub fn set_wear(&mut self, now: Instant, wear: Wear) {
         self.update(now);
         self.wear = wear;
@@ -746,12 +747,17 @@ impl Servo {
         } else {
             drive.moving_current_a()
         };
-        // Friction draws current in proportion to how fast the rod really moved in this step.
+        // Friction draws current in proportion to how fast the rod really moved in this step (and,
+        // for the parts of it that act one way or on part of the stroke only, which way and where:
+        // the middle of the step).
         let dt_s = dt.as_secs_f64();
         if dt_s > 0.0 {
-            let speed = (self.rod_mm - rod_before).abs() / dt_s;
-            self.current_a = (self.current_a + self.wear.friction_current_a(speed))
-                .min(drive.stall_current_a().max(self.current_a));
+            let velocity = (self.rod_mm - rod_before) / dt_s;
+            let friction = self
+                .wear
+                .moving_friction_current_a((self.rod_mm + rod_before) / 2.0, velocity);
+            self.current_a =
+                (self.current_a + friction).min(drive.stall_current_a().max(self.current_a));
         }
     }
 

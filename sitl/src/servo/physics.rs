@@ -9,9 +9,10 @@
 //! - temperature: a first-order model, `T → ambient + R_th × (current × voltage)` with time constant τ.
 //!   A stalled servo at 12 V reaches the 75 °C alarm in about 25 s and the 85 °C limit in about 32 s;
 //! - wear ([`Wear`], none by default): friction that draws extra current in proportion to the rod's
-//!   speed (a dry rod, a failing gear), and a stiff spot over part of the stroke where the rod meets an
-//!   extra load (a bent linkage) — moving or holding there. Both heat the servo through the current,
-//!   as any current does.
+//!   speed (a dry rod, a failing gear) — everywhere and both ways, only while the rod extends (a seal
+//!   or a burr that drags one way), or only over part of the stroke (a scored patch of the rod) —
+//!   and a stiff spot over part of the stroke where the rod meets an extra load (a bent linkage),
+//!   moving or holding there. All of them heat the servo through the current, as any current does.
 //!
 //! Everything here is pure arithmetic on `f64`; no clock.
 
@@ -52,12 +53,33 @@ pub struct StiffSpot {
     pub load_n: f64,
 }
 
+/// Friction over part of the stroke only: over the physical stroke `from_mm`–`to_mm` the rod
+/// draws an extra `a_per_mm_s` A per mm/s of its speed, either way.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrictionSpot {
+    pub from_mm: f64,
+    pub to_mm: f64,
+    pub a_per_mm_s: f64,
+}
+
+impl FrictionSpot {
+    fn covers(&self, rod_mm: f64) -> bool {
+        rod_mm >= self.from_mm.min(self.to_mm) && rod_mm <= self.from_mm.max(self.to_mm)
+    }
+}
+
 /// A servo's wear: what binding (a dry rod, a bent linkage, a failing gear) does to it.
+/// `Wear::default()` is no wear; every part adds to the others.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Wear {
-    /// Extra current per mm/s of rod speed while it moves, A·s/mm (≥ 0). 0.002 adds 0.1 A at
-    /// 50 mm/s, some 40 % of the current of a move without load.
+    /// Extra current per mm/s of rod speed while it moves, either way, A·s/mm (≥ 0). 0.002 adds
+    /// 0.1 A at 50 mm/s, some 40 % of the current of a move without load.
     pub friction_a_per_mm_s: f64,
+    /// Extra current per mm/s of rod speed while the rod extends (its physical position rises),
+    /// and none while it retracts, A·s/mm (≥ 0).
+    pub friction_extend_a_per_mm_s: f64,
+    /// Extra friction over part of the stroke only.
+    pub friction_spot: Option<FrictionSpot>,
     pub stiff_spot: Option<StiffSpot>,
 }
 
@@ -76,7 +98,7 @@ impl Wear {
         }
     }
 
-    /// The friction current at rod speed `speed_mm_s`, A.
+    /// The friction current (the part both ways and everywhere) at rod speed `speed_mm_s`, A.
     pub fn friction_current_a(&self, speed_mm_s: f64) -> f64 {
         let k = self.friction_a_per_mm_s;
         if k.is_finite() && k > 0.0 {
@@ -84,6 +106,25 @@ impl Wear {
         } else {
             0.0
         }
+    }
+
+    /// All the friction current of a rod at physical position `rod_mm` moving at
+    /// `velocity_mm_s` (positive: extending), A: [`Wear::friction_current_a`], plus the
+    /// extending friction while it extends, plus the friction spot's while it is on it.
+    pub fn moving_friction_current_a(&self, rod_mm: f64, velocity_mm_s: f64) -> f64 {
+        let usable = |k: f64| k.is_finite() && k > 0.0;
+        let mut current = self.friction_current_a(velocity_mm_s);
+        let k = self.friction_extend_a_per_mm_s;
+        if usable(k) && velocity_mm_s > 0.0 {
+            current += k * velocity_mm_s;
+        }
+        if let Some(spot) = self.friction_spot
+            && usable(spot.a_per_mm_s)
+            && spot.covers(rod_mm)
+        {
+            current += spot.a_per_mm_s * velocity_mm_s.abs();
+        }
+        current
     }
 }
 
@@ -228,12 +269,52 @@ mod tests {
                 to_mm: 2.0,
                 load_n: 50.0,
             }),
+            ..Wear::default()
         };
         assert!((wear.friction_current_a(-50.0) - 0.1).abs() < 1e-12);
         assert_eq!(wear.load_n_at(3.0), 50.0);
         assert_eq!(wear.load_n_at(6.0), 0.0);
         assert_eq!(Wear::default().friction_current_a(100.0), 0.0);
         assert_eq!(Wear::default().load_n_at(0.0), 0.0);
+    }
+
+    #[test]
+    fn extending_and_spot_friction_add_current_only_where_they_act() {
+        let one_way = Wear {
+            friction_extend_a_per_mm_s: 0.002,
+            ..Wear::default()
+        };
+        assert!((one_way.moving_friction_current_a(0.0, 50.0) - 0.1).abs() < 1e-12);
+        assert_eq!(one_way.moving_friction_current_a(0.0, -50.0), 0.0);
+        let spot = Wear {
+            friction_spot: Some(FrictionSpot {
+                from_mm: 4.0,
+                to_mm: 2.0,
+                a_per_mm_s: 0.002,
+            }),
+            ..Wear::default()
+        };
+        assert!((spot.moving_friction_current_a(3.0, -50.0) - 0.1).abs() < 1e-12);
+        assert!((spot.moving_friction_current_a(3.0, 50.0) - 0.1).abs() < 1e-12);
+        assert_eq!(spot.moving_friction_current_a(4.5, 50.0), 0.0);
+        // All together add up; the part both ways is what friction_current_a gives.
+        let all = Wear {
+            friction_a_per_mm_s: 0.001,
+            ..Wear {
+                friction_spot: spot.friction_spot,
+                ..one_way
+            }
+        };
+        assert!((all.moving_friction_current_a(3.0, 50.0) - 0.25).abs() < 1e-12);
+        assert!((all.moving_friction_current_a(3.0, -50.0) - 0.15).abs() < 1e-12);
+        assert_eq!(
+            all.moving_friction_current_a(9.0, -50.0),
+            all.friction_current_a(-50.0)
+        );
+        // No wear: nothing, anywhere, either way.
+        for (at, v) in [(0.0, 30.0), (3.0, -30.0)] {
+            assert_eq!(Wear::default().moving_friction_current_a(at, v), 0.0);
+        }
     }
 
     #[test]
