@@ -10,7 +10,9 @@
 //! - [`servo`]: one servo — memory map, RAM/flash, force, motion, current, heat — pure, handed `now`;
 //! - [`bus`]: [`BusModel`], the line and the servos on it — wire time, bit rates, half-duplex collisions,
 //!   echo, reply faults — pure, handed `now` (tests drive it with virtual time);
-//! - [`runtime`]: [`SimBus`], a thread serving a pty or TCP in real time, and [`SimHandle`].
+//! - [`runtime`]: [`SimBus`], a thread serving a pty or TCP in real time, and [`SimHandle`];
+//! - [`realtime`]: the scheduling a thread that must wake on time asks for (SCHED_FIFO, or a
+//!   short time slice), shared with the bridge's bus threads.
 //!
 //! API notes (relative to the shape first agreed with the bridge):
 //! - Handle methods that address a servo take its *current* ID (register 4); if no servo has that ID now,
@@ -47,6 +49,7 @@ pub mod config;
 pub mod events;
 pub mod fault;
 pub mod protocol;
+pub mod realtime;
 pub mod runtime;
 pub mod servo;
 

@@ -77,16 +77,7 @@ pub const REALTIME_PRIORITY: i32 = 10;
 /// never holds a core. Refused without CAP_SYS_NICE or an RLIMIT_RTPRIO of at least the
 /// priority (`lj9da-bridge deploy systemd` grants both).
 fn request_realtime() -> std::io::Result<()> {
-    use nix::libc;
-    let param = libc::sched_param {
-        sched_priority: REALTIME_PRIORITY,
-    };
-    // SAFETY: pid 0 is the calling thread; the kernel only reads `param`.
-    if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } == 0 {
-        Ok(())
-    } else {
-        Err(std::io::Error::last_os_error())
-    }
+    lj9da_sim::realtime::request_fifo(REALTIME_PRIORITY)
 }
 
 /// Say once per process, at warning level, that the bus threads run without real-time
@@ -170,51 +161,11 @@ const SCHED_SLICE: Duration = Duration::from_micros(100);
 /// with a `sched_runtime` for a normal thread; no privilege needed). A thread with a shorter
 /// slice than the one running may preempt it when it wakes, instead of waiting for that
 /// thread's slice (a few ms) to end: the bus thread wakes for a reply's last byte or a deadline
-/// and has tens of µs of work. Older kernels refuse it; nothing else changes.
+/// and has tens of µs of work. Older kernels refuse it; nothing else changes. The thread keeps
+/// its nice value (which `sched_setattr` sets too).
 fn request_short_slice() -> std::io::Result<()> {
-    use nix::libc;
-    /// `struct sched_attr`, first version (`SCHED_ATTR_SIZE_VER1`).
-    #[repr(C)]
-    struct SchedAttr {
-        size: u32,
-        policy: u32,
-        flags: u64,
-        nice: i32,
-        priority: u32,
-        runtime: u64,
-        deadline: u64,
-        period: u64,
-        util_min: u32,
-        util_max: u32,
-    }
-    // Keep the thread's nice value: sched_setattr sets it too. getpriority returns -1 both for
-    // nice -1 and for an error, so errno tells them apart.
-    nix::errno::Errno::clear();
-    // SAFETY: getpriority only reads the calling thread's (PRIO_PROCESS, 0) nice value.
-    let nice = unsafe { libc::getpriority(libc::PRIO_PROCESS, 0) };
-    if nice == -1 && nix::errno::Errno::last_raw() != 0 {
-        return Err(std::io::Error::last_os_error());
-    }
-    let attr = SchedAttr {
-        size: std::mem::size_of::<SchedAttr>() as u32,
-        policy: libc::SCHED_OTHER as u32,
-        flags: 0,
-        nice,
-        priority: 0,
-        runtime: SCHED_SLICE.as_nanos() as u64,
-        deadline: 0,
-        period: 0,
-        util_min: 0,
-        util_max: 0,
-    };
-    // SAFETY: `attr` is a valid, fully initialised sched_attr of the size it declares; pid 0 is
-    // the calling thread; the kernel only reads it.
-    let r = unsafe { libc::syscall(libc::SYS_sched_setattr, 0, &attr as *const SchedAttr, 0) };
-    if r == 0 {
-        Ok(())
-    } else {
-        Err(std::io::Error::last_os_error())
-    }
+    use lj9da_sim::realtime;
+    realtime::request_slice(SCHED_SLICE, realtime::nice()?)
 }
 
 /// A wake-up this long after the instant slept until is counted as late

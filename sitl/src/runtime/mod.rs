@@ -478,52 +478,20 @@ pub const REALTIME_PRIORITY: i32 = 10;
 /// CAP_SYS_NICE, no RLIMIT_RTPRIO). The thread sleeps between bytes and spins only within
 /// 100 µs of one, so it never holds a core for long.
 fn request_realtime() -> bool {
-    let param = libc::sched_param {
-        sched_priority: REALTIME_PRIORITY,
-    };
-    // SAFETY: pid 0 is the calling thread; the kernel only reads `param`.
-    let result = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
-    if result != 0 {
-        tracing::debug!(error = %io::Error::last_os_error(), "no real-time scheduling for the simulated bus");
+    let result = crate::realtime::request_fifo(REALTIME_PRIORITY);
+    if let Err(error) = &result {
+        tracing::debug!(%error, "no real-time scheduling for the simulated bus");
     }
-    result == 0
+    result.is_ok()
 }
 
 /// Ask Linux (≥ 6.12, EEVDF) to run the bus thread in 100 µs slices, so that when it wakes for a
 /// byte it may preempt a thread running a longer slice instead of waiting for that slice to end.
-/// Unprivileged; older kernels refuse it and nothing else changes.
+/// Unprivileged; older kernels refuse it and nothing else changes. The thread's nice value is
+/// set to 0 with it.
 fn request_short_slice() {
-    /// `struct sched_attr`, first version (`SCHED_ATTR_SIZE_VER1`).
-    #[repr(C)]
-    struct SchedAttr {
-        size: u32,
-        policy: u32,
-        flags: u64,
-        nice: i32,
-        priority: u32,
-        runtime: u64,
-        deadline: u64,
-        period: u64,
-        util_min: u32,
-        util_max: u32,
-    }
-    let attr = SchedAttr {
-        size: std::mem::size_of::<SchedAttr>() as u32,
-        policy: libc::SCHED_OTHER as u32,
-        flags: 0,
-        nice: 0,
-        priority: 0,
-        runtime: 100_000,
-        deadline: 0,
-        period: 0,
-        util_min: 0,
-        util_max: 0,
-    };
-    // SAFETY: `attr` is a valid sched_attr of the size it declares; pid 0 is the calling thread;
-    // the kernel only reads it.
-    let result = unsafe { libc::syscall(libc::SYS_sched_setattr, 0, &attr as *const SchedAttr, 0) };
-    if result != 0 {
-        tracing::debug!(error = %io::Error::last_os_error(), "scheduler slice stays at its default");
+    if let Err(error) = crate::realtime::request_slice(Duration::from_micros(100), 0) {
+        tracing::debug!(%error, "scheduler slice stays at its default");
     }
 }
 

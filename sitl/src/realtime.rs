@@ -1,0 +1,119 @@
+//! Scheduling requests for a thread that must wake on time: real-time scheduling (SCHED_FIFO),
+//! or, where that is refused, a short time slice (`sched_setattr`). Used by the simulator's
+//! bus thread and by the bridge's bus threads; each caller decides when to ask, and says in
+//! its own words what it got.
+//!
+//! A leaf: the calling thread and the kernel only (Linux), nothing of either crate.
+
+use std::io;
+use std::time::Duration;
+
+/// `SCHED_ATTR_SIZE_VER1` of `<linux/sched/types.h>`: the size of `struct sched_attr` with
+/// `sched_util_min` and `sched_util_max` (the first published one, `SCHED_ATTR_SIZE_VER0`, is
+/// 48 bytes: it ends at `sched_period`).
+pub const SCHED_ATTR_SIZE_VER1: usize = 56;
+
+/// `struct sched_attr` of `SCHED_ATTR_SIZE_VER1`, field for field.
+#[repr(C)]
+struct SchedAttr {
+    size: u32,
+    policy: u32,
+    flags: u64,
+    nice: i32,
+    priority: u32,
+    runtime: u64,
+    deadline: u64,
+    period: u64,
+    util_min: u32,
+    util_max: u32,
+}
+
+/// Ask for real-time scheduling of the calling thread: SCHED_FIFO at `priority`. Refused
+/// without CAP_SYS_NICE or an RLIMIT_RTPRIO of at least `priority`; the error is the kernel's.
+pub fn request_fifo(priority: i32) -> io::Result<()> {
+    let param = libc::sched_param {
+        sched_priority: priority,
+    };
+    // SAFETY: pid 0 is the calling thread; the kernel only reads `param`.
+    if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+/// The calling thread's nice value.
+pub fn nice() -> io::Result<i32> {
+    // getpriority returns -1 both for nice -1 and for an error, so errno tells them apart.
+    nix::errno::Errno::clear();
+    // SAFETY: getpriority only reads the calling thread's (PRIO_PROCESS, 0) nice value.
+    let nice = unsafe { libc::getpriority(libc::PRIO_PROCESS, 0) };
+    if nice == -1 && nix::errno::Errno::last_raw() != 0 {
+        return Err(io::Error::last_os_error());
+    }
+    Ok(nice)
+}
+
+/// Ask the scheduler to run the calling thread, a normal (SCHED_OTHER) one, in slices of
+/// `slice` (Linux ≥ 6.12, EEVDF: `sched_setattr` with a `sched_runtime`; no privilege needed;
+/// 100 µs is the shortest granted). A thread with a shorter slice than the one running may
+/// preempt it when it wakes, instead of waiting for that thread's slice (a few ms) to end.
+/// `sched_setattr` sets the nice value too: `nice` is the one the thread gets (pass [`nice`]
+/// to keep its own). Older kernels refuse it; the error is the kernel's.
+pub fn request_slice(slice: Duration, nice: i32) -> io::Result<()> {
+    let attr = SchedAttr {
+        size: std::mem::size_of::<SchedAttr>() as u32,
+        policy: libc::SCHED_OTHER as u32,
+        flags: 0,
+        nice,
+        priority: 0,
+        runtime: slice.as_nanos() as u64,
+        deadline: 0,
+        period: 0,
+        util_min: 0,
+        util_max: 0,
+    };
+    // SAFETY: `attr` is a valid, fully initialised sched_attr of the size it declares; pid 0 is
+    // the calling thread; the kernel only reads it.
+    let r = unsafe { libc::syscall(libc::SYS_sched_setattr, 0, &attr as *const SchedAttr, 0) };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_sched_attr_has_the_kernels_size() {
+        assert_eq!(std::mem::size_of::<SchedAttr>(), SCHED_ATTR_SIZE_VER1);
+    }
+
+    /// In a thread of its own: the requests change the scheduling of the thread that makes them.
+    fn in_a_thread<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
+        std::thread::spawn(f).join().expect("no panic")
+    }
+
+    #[test]
+    fn a_short_slice_is_granted_or_refused_by_the_kernel() {
+        let result = in_a_thread(|| {
+            let before = nice().expect("the thread's nice value");
+            let result = request_slice(Duration::from_micros(100), before);
+            (result, before, nice().expect("the thread's nice value"))
+        });
+        match result {
+            (Ok(()), before, after) => assert_eq!(after, before, "the nice value is kept"),
+            (Err(e), _, _) => assert!(e.raw_os_error().is_some(), "not the kernel's: {e}"),
+        }
+    }
+
+    #[test]
+    fn real_time_scheduling_is_granted_or_refused_by_the_kernel() {
+        if let Err(e) = in_a_thread(|| request_fifo(10)) {
+            assert!(e.raw_os_error().is_some(), "not the kernel's: {e}");
+        }
+    }
+}
