@@ -112,11 +112,18 @@ fn init_logging(live_view: bool) {
     }
 }
 
+/// The mapping file at `path`, refused (exit 2) when it does not load or when two of its
+/// serial ports are one device.
 fn load(path: &Path) -> Result<Config, ExitCode> {
-    Config::load(path).map_err(|e| {
+    let cfg = Config::load(path).map_err(|e| {
         eprintln!("error: {e}");
         ExitCode::from(2)
-    })
+    })?;
+    if let Some(shared) = cfg.shared_device(|p| std::fs::canonicalize(p).ok()) {
+        eprintln!("error: {}: {shared}", path.display());
+        return Err(ExitCode::from(2));
+    }
+    Ok(cfg)
 }
 
 fn main() -> ExitCode {

@@ -161,6 +161,75 @@ fn two_buses_on_one_port_are_refused() {
 }
 
 #[test]
+fn a_bus_on_the_mavlink_links_serial_port_is_refused() {
+    let text = with(
+        "connection = \"udpin:0.0.0.0:14560\"",
+        "connection = \"serial:/dev/ttyUSB0:921600\"",
+    );
+    let e = refused(
+        &text,
+        "port = \"/dev/ttyUSB0\"",
+        "port",
+        "/dev/ttyUSB0 is already the MAVLink link's port ([mavlink] connection)",
+    );
+    assert_eq!(e.scope(), Some("bus \"wing\""));
+    let gcs = with(
+        "connection = \"udpin:0.0.0.0:14560\"",
+        "connection = \"udpin:0.0.0.0:14560\"\ngcs = \"serial:/dev/ttyUSB0:57600\"",
+    );
+    refused(
+        &gcs,
+        "port = \"/dev/ttyUSB0\"",
+        "port",
+        "already the MAVLink link's port ([mavlink] gcs)",
+    );
+}
+
+/// `/dev/serial0` is a link to the UART itself on a Raspberry Pi: names that differ can still
+/// be one device, which `check` and `run` find by following them.
+#[test]
+fn a_bus_and_the_mavlink_link_on_one_device_by_two_names_are_refused_by_check() {
+    let dir = std::env::temp_dir().join(format!("lj9da-shared-device-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let uart = dir.join("ttyAMA0");
+    std::fs::write(&uart, "").unwrap();
+    let serial0 = dir.join("serial0");
+    std::os::unix::fs::symlink(&uart, &serial0).unwrap();
+    let text = GOOD
+        .replace(
+            "connection = \"udpin:0.0.0.0:14560\"",
+            &format!("connection = \"serial:{}:921600\"", serial0.display()),
+        )
+        .replace("/dev/ttyUSB0", &uart.display().to_string());
+    let cfg = Config::parse(&text, ORIGIN).expect("two names: the reader cannot tell");
+    let said = cfg
+        .shared_device(|p| std::fs::canonicalize(p).ok())
+        .expect("one device");
+    assert!(said.contains("bus \"wing\""), "{said}");
+    assert!(said.contains("[mavlink] connection"), "{said}");
+    let mapping = dir.join("m.toml");
+    std::fs::write(&mapping, &text).unwrap();
+    for command in ["check", "run"] {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
+            .args([command, "--config"])
+            .arg(&mapping)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{command}: {err}");
+        assert!(err.contains("are one device"), "{command}: {err}");
+    }
+    // Distinct devices: nothing said.
+    let other = dir.join("ttyUSB0");
+    std::fs::write(&other, "").unwrap();
+    let apart = text.replace(&uart.display().to_string(), &other.display().to_string());
+    let apart = Config::parse(&apart, ORIGIN).unwrap();
+    assert_eq!(apart.shared_device(|p| std::fs::canonicalize(p).ok()), None);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn two_buses_with_one_name_are_refused() {
     let text = with(
         "\n[[servo]]\nname = \"aileron_left\"",

@@ -215,6 +215,19 @@ impl Default for TelemetryConfig {
     }
 }
 
+impl MavlinkConfig {
+    /// The serial ports of the links on `serial:` (`connection`, `gcs`), by key.
+    pub fn serial_links(&self) -> Vec<(&'static str, &str)> {
+        fn port(address: &str) -> Option<&str> {
+            let rest = address.strip_prefix("serial:")?;
+            Some(rest.rsplit_once(':').map_or(rest, |(port, _)| port))
+        }
+        let connection = port(&self.connection).map(|p| ("connection", p));
+        let gcs = self.gcs.as_deref().and_then(port).map(|p| ("gcs", p));
+        connection.into_iter().chain(gcs).collect()
+    }
+}
+
 /// Check a `mavlink` crate address string; the reason names what is wrong and shows an example.
 pub fn check_connection(address: &str) -> Result<(), String> {
     const EXAMPLES: &str =

@@ -70,7 +70,7 @@ pub use servo::{FailsafeAction, PwmRange, ServoConfig};
 
 use error::{Doc, entry_scope};
 use raw::RawFile;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The built-in airframe of `lj9da-bridge sitl`: `mappings/sitl-default.toml`.
 pub const SITL_DEFAULT_TOML: &str = include_str!("../../mappings/sitl-default.toml");
@@ -90,6 +90,39 @@ pub struct Config {
 }
 
 impl Config {
+    /// Two of the serial ports the mapping opens (the buses', the `serial:` MAVLink links')
+    /// that are one device once `resolve` has followed their names (`/dev/serial0` is a link to
+    /// `/dev/ttyAMA0` or `/dev/ttyS0` on a Raspberry Pi), said as an error; `None` when each
+    /// is a device of its own. [`Config::load`] refuses equal names; this is for `check` and
+    /// `run`, which pass [`std::fs::canonicalize`] (a port that does not exist yet resolves to
+    /// its own name).
+    pub fn shared_device(&self, resolve: impl Fn(&Path) -> Option<PathBuf>) -> Option<String> {
+        let mut ports: Vec<(String, &Path)> = self
+            .buses
+            .iter()
+            .map(|b| (format!("bus \"{}\"", b.name), b.port.as_path()))
+            .collect();
+        for (key, link) in self.mavlink.serial_links() {
+            ports.push((format!("[mavlink] {key}"), Path::new(link)));
+        }
+        let device = |p: &Path| resolve(p).unwrap_or_else(|| p.to_path_buf());
+        for (i, (who, port)) in ports.iter().enumerate() {
+            for (other, other_port) in &ports[..i] {
+                let (a, b) = (device(port), device(other_port));
+                if a == b {
+                    return Some(format!(
+                        "{who} ({}) and {other} ({}) are one device, {}: a serial port carries \
+                         one bus or one MAVLink link",
+                        port.display(),
+                        other_port.display(),
+                        a.display()
+                    ));
+                }
+            }
+        }
+        None
+    }
+
     /// Read and validate the mapping file at `path`.
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
@@ -195,6 +228,20 @@ impl Config {
                             "{} is already the port of bus \"{}\" (line {line}); one serial port carries one bus, so put its servos in that [[bus]]",
                             bus.port.display(),
                             earlier.name
+                        ),
+                    ));
+                }
+            }
+            for (key, link) in mavlink.serial_links() {
+                if Path::new(link) == bus.port {
+                    return Err(scope.error_on(
+                        &entry.port,
+                        "port",
+                        format!(
+                            "{} is already the MAVLink link's port ([mavlink] {key}); a serial port \
+                             carries the autopilot's MAVLink or a servo bus, not both: put the bus \
+                             on another UART or a USB adapter",
+                            bus.port.display()
                         ),
                     ));
                 }
