@@ -16,7 +16,7 @@ use std::process::ExitCode;
     name = "lj9da-bridge",
     version,
     about = "Bridge between MAVLink autopilots (PX4, ArduPilot) and Futaba LJ9DA41 RS485 linear servos",
-    after_help = "Examples:\n  lj9da-bridge sitl                          # the whole chain in simulation, no hardware\n  lj9da-bridge ports                         # which serial port is which\n  lj9da-bridge check --config mappings/ardupilot-plane.toml\n  lj9da-bridge run --config /etc/lj9da-bridge/plane.toml\n\nLogs: set RUST_LOG (e.g. RUST_LOG=lj9da_bridge=debug)."
+    after_help = "Examples:\n  lj9da-bridge sitl                          # the whole chain in simulation, no hardware\n  lj9da-bridge ports                         # which serial port is which\n  lj9da-bridge check --config mappings/ardupilot-plane.toml\n  lj9da-bridge run --config /etc/lj9da-bridge/bridge.toml\n\nLogs: set RUST_LOG (e.g. RUST_LOG=lj9da_bridge=debug)."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -33,6 +33,7 @@ enum Command {
     },
     /// Validate a mapping file and print the resolved table.
     Check {
+        /// The mapping file to check (see mappings/); exit 2 if it is refused.
         #[arg(long, short)]
         config: PathBuf,
     },

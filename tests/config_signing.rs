@@ -252,6 +252,9 @@ fn check_warns_when_a_link_reachable_from_outside_is_not_signed() {
         let w = warned(outside, "").unwrap_or_else(|| panic!("no warning for {outside}"));
         assert!(w.contains(outside), "{w}");
         assert!(w.contains("signing_passphrase"), "{w}");
+        // A key cuts off an autopilot that does not sign: the advice says which do.
+        assert!(w.contains("If the autopilot signs"), "{w}");
+        assert!(w.contains("not 1.16 or older"), "{w}");
     }
     for inside in [
         "udpin:127.0.0.1:14560",

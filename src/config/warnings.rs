@@ -124,8 +124,10 @@ fn unsigned_outside_links(cfg: &Config) -> Option<String> {
     Some(format!(
         "warning: MAVLink 2 signing is off and {} not on this computer alone (a serial port, or \
          a host other than 127.0.0.1, ::1 or localhost): whoever can send on it can move the \
-         servos. Set [mavlink] signing_passphrase to the passphrase given to the autopilot \
-         (MAVProxy: `signing setup <passphrase>`), or signing_key / signing_key_file.",
+         servos. If the autopilot signs (ArduPilot; PX4 only from 1.17: not 1.16 or older), set \
+         [mavlink] signing_passphrase to the passphrase given to the autopilot (MAVProxy: \
+         `signing setup <passphrase>`), or signing_key / signing_key_file: with a key the bridge \
+         drops every unsigned message, so an autopilot that does not sign is cut off.",
         if outside.len() == 1 {
             format!("{} is", outside[0])
         } else {

@@ -125,7 +125,8 @@ impl RateMeter {
             self.warnings.push(format!(
                 "the autopilot sends {} at {hz:.1} Hz, below the {asked_hz} Hz asked for, for \
                  {seconds} s: the servos follow it at that rate. ArduPilot: the stream's rate is \
-                 SRm_RC_CHAN (MAVm_RC_CHAN from 4.7), capped at 0.8 × SCHED_LOOP_RATE; PX4: raise \
+                 SRm_RC_CHAN (MAV<m+1>_RC_CHAN from 4.7; m the port's MAVLink channel), capped \
+                 at 0.8 × SCHED_LOOP_RATE; PX4: raise \
                  MAV_n_RATE (the link's byte budget) or lower MAV_n_MODE's other streams; or \
                  lower [mavlink] output_rate_hz (docs/autopilot.md)",
                 self.port_name(port)
