@@ -136,13 +136,13 @@ fn unsigned_outside_links(cfg: &Config) -> Option<String> {
     ))
 }
 
-/// PX4 streams SERVO_OUTPUT_RAW for its first output driver only (MAV_CMD_SET_MESSAGE_INTERVAL
-/// for message 36 reaches the `_0` stream), and its `port` is the driver instance, not channels
-/// 17–32: a servo on channel 17 or above would never be commanded, only failsafed.
+/// PX4 streams its first output driver only, in both messages: SERVO_OUTPUT_RAW port 0
+/// (MAV_CMD_SET_MESSAGE_INTERVAL for message 36 reaches the `_0` stream; its `port` numbers
+/// drivers, not channels 17–32) and ACTUATOR_OUTPUT_STATUS (PX4's
+/// `src/modules/mavlink/streams/ACTUATOR_OUTPUT_STATUS.hpp` reads `actuator_outputs` instance 0,
+/// 16 outputs). A servo on channel 17 or above is carried by ArduPilot's SERVO_OUTPUT_RAW port 1
+/// alone: from PX4 it would never be commanded, only failsafed.
 fn px4_port_1_channels(cfg: &Config) -> Option<String> {
-    if cfg.mavlink.source != Source::ServoOutputRaw {
-        return None;
-    }
     let high: Vec<String> = cfg
         .servos
         .iter()
@@ -152,11 +152,15 @@ fn px4_port_1_channels(cfg: &Config) -> Option<String> {
     if high.is_empty() {
         return None;
     }
+    let carried = match cfg.mavlink.source {
+        Source::ServoOutputRaw => "ArduPilot sends those in SERVO_OUTPUT_RAW port 1; PX4 does not",
+        Source::ActuatorOutputStatus => "ACTUATOR_OUTPUT_STATUS from PX4 carries none of them",
+    };
     Some(format!(
-        "warning: {} read channels 17–32 from SERVO_OUTPUT_RAW port 1. ArduPilot sends those, \
-         PX4 does not (it streams port 0 only, and its port numbers output drivers): on PX4 set \
-         [mavlink] source = \"ACTUATOR_OUTPUT_STATUS\", or these servos will only ever take \
-         their failsafe action.",
+        "warning: {} read channels 17–32. {carried}: PX4 streams its first output driver's \
+         outputs only, in SERVO_OUTPUT_RAW port 0 and ACTUATOR_OUTPUT_STATUS alike. On PX4 put \
+         these servos on that driver's outputs (channels 1–16, e.g. MAIN on a board with an I/O \
+         processor), or they will only ever take their failsafe action.",
         high.join(", ")
     ))
 }
