@@ -1,7 +1,9 @@
 //! The whole chain for integration tests: simulated servos on real pseudo-terminals, the
-//! bridge in this process, the simulated autopilot and a ground station on real UDP sockets.
+//! bridge in this process, the simulated autopilot and a ground station on real UDP sockets;
+//! [`mapping`] builds the mappings the chains run.
 #![allow(dead_code)]
 
+pub mod mapping;
 pub mod python;
 
 use lj9da_bridge::config::Config;
