@@ -1,9 +1,10 @@
 //! The whole chain for integration tests: simulated servos on real pseudo-terminals, the
 //! bridge in this process, the simulated autopilot and a ground station on real UDP sockets;
-//! [`mapping`] builds the mappings the chains run.
+//! [`mapping`] builds the mappings the chains run, [`peer`] plays the autopilot from the test.
 #![allow(dead_code)]
 
 pub mod mapping;
+pub mod peer;
 pub mod python;
 
 use lj9da_bridge::config::Config;
