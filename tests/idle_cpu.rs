@@ -13,30 +13,17 @@
 mod common;
 
 use common::Chain;
+use common::mapping::Mapping;
 use std::time::Duration;
 
-const MAPPING: &str = r#"
-[mavlink]
-connection = "udpin:127.0.0.1:14560"
-output_rate_hz = 50
-
-[[bus]]
-name = "wing"
-port = "sim"
-turnaround_ms = 20
-
-[[servo]]
-name = "aileron"
-bus = "wing"
-id = 1
-channel = 1
-
-[[servo]]
-name = "elevator"
-bus = "wing"
-id = 2
-channel = 2
-"#;
+/// Two servos; the outputs asked for at 50 Hz.
+fn mapping() -> String {
+    Mapping::new()
+        .with("[mavlink]", "output_rate_hz = 50")
+        .servo("aileron", 1, 1)
+        .servo("elevator", 2, 2)
+        .to_string()
+}
 
 /// How long each state is measured.
 const SPELL: Duration = Duration::from_secs(3);
@@ -62,7 +49,7 @@ async fn cpu_over_a_spell() -> Duration {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn waiting_for_the_autopilot_costs_no_more_than_running() {
-    let waiting = Chain::start(MAPPING, false).await;
+    let waiting = Chain::start(&mapping(), false).await;
     waiting
         .wait_view("the servos read", Duration::from_secs(20), |v| {
             v.servos.iter().all(|s| s.report.position_mm.is_some())
@@ -75,7 +62,7 @@ async fn waiting_for_the_autopilot_costs_no_more_than_running() {
     );
     waiting.stop().await;
 
-    let running = Chain::start(MAPPING, true).await;
+    let running = Chain::start(&mapping(), true).await;
     running
         .wait_view(
             "the autopilot's outputs obeyed",

@@ -7,45 +7,25 @@
 
 mod common;
 
+use common::mapping::Mapping;
+use common::peer::{Autopilot, outputs};
 use common::{Chain, ChainOptions};
+use mavlink::MavHeader;
 use mavlink::dialects::common::*;
-use mavlink::{AsyncMavConnection, MavHeader};
 use std::io::Read;
 use std::net::TcpListener;
 use std::os::fd::AsRawFd;
 use std::time::{Duration, Instant};
 
-const MAPPING: &str = r#"
-[mavlink]
-connection = "udpin:127.0.0.1:14560"
-output_rate_hz = 50
-
-[telemetry]
-rate_hz = 50
-
-[[bus]]
-name = "wing"
-port = "sim"
-turnaround_ms = 20
-
-[[servo]]
-name = "aileron"
-bus = "wing"
-id = 1
-channel = 1
-
-[[servo]]
-name = "elevator"
-bus = "wing"
-id = 2
-channel = 2
-"#;
-
-const AUTOPILOT: MavHeader = MavHeader {
-    system_id: 1,
-    component_id: 1,
-    sequence: 0,
-};
+/// Two servos; the outputs asked for at 50 Hz, telemetry at 50 Hz.
+fn mapping() -> String {
+    Mapping::new()
+        .with("[mavlink]", "output_rate_hz = 50")
+        .with("[telemetry]", "rate_hz = 50")
+        .servo("aileron", 1, 1)
+        .servo("elevator", 2, 2)
+        .to_string()
+}
 
 /// A listening socket whose connections have a small receive buffer, so that a peer that
 /// does not read fills up within a second.
@@ -64,14 +44,6 @@ fn small_buffer_listener() -> TcpListener {
     };
     assert_eq!(r, 0, "SO_RCVBUF");
     listener
-}
-
-fn outputs(us: u16) -> MavMessage {
-    MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
-        servo1_raw: us,
-        servo2_raw: 1520,
-        ..Default::default()
-    })
 }
 
 /// A read of parameter `index`, answered at once with its PARAM_VALUE on the link it came in
@@ -94,7 +66,7 @@ async fn a_ground_station_that_stops_reading_holds_no_goal() {
     let listener = small_buffer_listener();
     let port = listener.local_addr().unwrap().port();
     let chain = Chain::start_opts(
-        MAPPING,
+        &mapping(),
         ChainOptions {
             gcs_address: Some(format!("tcpout:127.0.0.1:{port}")),
             ..ChainOptions::default()
@@ -105,16 +77,8 @@ async fn a_ground_station_that_stops_reading_holds_no_goal() {
         .await
         .unwrap()
         .expect("the bridge connects to the ground station");
-    let ap =
-        mavlink::connect_async::<MavMessage>(&format!("udpout:127.0.0.1:{}", chain.autopilot_port))
-            .await
-            .unwrap();
-    let heartbeat = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-        mavtype: MavType::MAV_TYPE_FIXED_WING,
-        autopilot: MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
-        ..Default::default()
-    });
-    ap.send(&AUTOPILOT, &heartbeat).await.unwrap();
+    let ap = Autopilot::connect(chain.autopilot_port).await;
+    ap.heartbeat().await;
     let sim = chain.sims[0].handle();
 
     // 10 s of outputs at 50 Hz, the value of channel 1 changing every 250 ms between +10 and
@@ -143,9 +107,9 @@ async fn a_ground_station_that_stops_reading_holds_no_goal() {
             }
             awaited = Some((mm, Instant::now()));
         }
-        ap.send(&AUTOPILOT, &outputs(us)).await.unwrap();
+        ap.send(&outputs(&[us, 1520])).await;
         if k.is_multiple_of(50) {
-            ap.send(&AUTOPILOT, &heartbeat).await.unwrap();
+            ap.heartbeat().await;
         }
         let mut frames = Vec::new();
         for n in 0..READS_PER_TICK {
