@@ -17,12 +17,11 @@ use common::mapping::Mapping;
 use std::time::Duration;
 
 /// Two servos; the outputs asked for at 50 Hz.
-fn mapping() -> String {
+fn mapping() -> Mapping {
     Mapping::new()
         .with("[mavlink]", "output_rate_hz = 50")
         .servo("aileron", 1, 1)
         .servo("elevator", 2, 2)
-        .to_string()
 }
 
 /// How long each state is measured.
@@ -49,7 +48,7 @@ async fn cpu_over_a_spell() -> Duration {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn waiting_for_the_autopilot_costs_no_more_than_running() {
-    let waiting = Chain::start(&mapping(), false).await;
+    let waiting = Chain::start(mapping(), false).await;
     waiting
         .wait_view("the servos read", Duration::from_secs(20), |v| {
             v.servos.iter().all(|s| s.report.position_mm.is_some())
@@ -62,7 +61,7 @@ async fn waiting_for_the_autopilot_costs_no_more_than_running() {
     );
     waiting.stop().await;
 
-    let running = Chain::start(&mapping(), true).await;
+    let running = Chain::start(mapping(), true).await;
     running
         .wait_view(
             "the autopilot's outputs obeyed",

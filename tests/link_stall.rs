@@ -18,13 +18,12 @@ use std::os::fd::AsRawFd;
 use std::time::{Duration, Instant};
 
 /// Two servos; the outputs asked for at 50 Hz, telemetry at 50 Hz.
-fn mapping() -> String {
+fn mapping() -> Mapping {
     Mapping::new()
         .with("[mavlink]", "output_rate_hz = 50")
         .with("[telemetry]", "rate_hz = 50")
         .servo("aileron", 1, 1)
         .servo("elevator", 2, 2)
-        .to_string()
 }
 
 /// A listening socket whose connections have a small receive buffer, so that a peer that
@@ -66,7 +65,7 @@ async fn a_ground_station_that_stops_reading_holds_no_goal() {
     let listener = small_buffer_listener();
     let port = listener.local_addr().unwrap().port();
     let chain = Chain::start_opts(
-        &mapping(),
+        mapping(),
         ChainOptions {
             gcs_address: Some(format!("tcpout:127.0.0.1:{port}")),
             ..ChainOptions::default()

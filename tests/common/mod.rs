@@ -15,6 +15,7 @@ use lj9da_sim::{SimBus, SimConfig};
 use mavlink::dialects::common::MavMessage;
 use mavlink::{AsyncMavConnection, MavHeader};
 use std::collections::HashMap;
+use std::fmt::Display;
 use std::net::UdpSocket;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -161,15 +162,20 @@ pub struct Chain {
 }
 
 impl Chain {
-    /// Start the chain for `mapping` (its buses get simulated servos). With `autopilot` false
-    /// the test plays the autopilot itself on `udpout:127.0.0.1:<autopilot_port>`.
-    pub async fn start(mapping: &str, autopilot: bool) -> Chain {
+    /// Start the chain for `mapping` (its text, or a [`mapping::Mapping`]; its buses get
+    /// simulated servos). With `autopilot` false the test plays the autopilot itself on
+    /// `udpout:127.0.0.1:<autopilot_port>` (see [`peer::Autopilot`]).
+    pub async fn start(mapping: impl Display, autopilot: bool) -> Chain {
         Self::start_with(mapping, autopilot, None).await
     }
 
     /// As [`Chain::start`]; with `gcs_port` the bridge's telemetry goes to that port (for an
     /// outside ground station) and `gcs` hears nothing.
-    pub async fn start_with(mapping: &str, autopilot: bool, gcs_port: Option<u16>) -> Chain {
+    pub async fn start_with(
+        mapping: impl Display,
+        autopilot: bool,
+        gcs_port: Option<u16>,
+    ) -> Chain {
         Self::start_opts(
             mapping,
             ChainOptions {
@@ -182,7 +188,8 @@ impl Chain {
     }
 
     /// Start the chain for `mapping` as `opts` say.
-    pub async fn start_opts(mapping: &str, opts: ChainOptions) -> Chain {
+    pub async fn start_opts(mapping: impl Display, opts: ChainOptions) -> Chain {
+        let mapping = &mapping.to_string();
         let ChainOptions {
             autopilot,
             gcs_port,
