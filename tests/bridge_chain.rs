@@ -6,58 +6,27 @@ mod bus_support;
 mod common;
 
 use bus_support::{assert_line_kept, talk_overs};
-use common::{Chain, free_udp_port};
+use common::Chain;
+use common::mapping::Mapping;
+use common::peer::{Autopilot, AutopilotOptions, heartbeat_of, outputs};
 use lj9da_bridge::bus::Health;
 use lj9da_bridge::record::{RecordBody, Recording, read_record, summary};
-use lj9da_bridge::simulation::autopilot::sweep_us;
 use mavlink::dialects::common::*;
-use mavlink::{AsyncMavConnection, MavHeader, MavlinkVersion};
+use mavlink::{MavHeader, MavlinkVersion};
 use std::time::Duration;
 
-const FOUR_SERVOS: &str = r#"
-[mavlink]
-connection = "udpin:127.0.0.1:14560"
-failsafe_timeout_ms = 400
-output_rate_hz = 40
-
-[telemetry]
-rate_hz = 10
-
-[[bus]]
-name = "wing"
-port = "sim"
-baud = 115200
-# Several chains share two cores while the tests run: allow for a scheduler's hiccup.
-turnaround_ms = 20
-
-[[servo]]
-name = "aileron_left"
-label = "ail_l"
-bus = "wing"
-id = 1
-channel = 1
-
-[[servo]]
-name = "aileron_right"
-label = "ail_r"
-bus = "wing"
-id = 2
-channel = 2
-
-[[servo]]
-name = "elevator"
-label = "elev"
-bus = "wing"
-id = 3
-channel = 3
-failsafe = 4.0
-
-[[servo]]
-name = "rudder"
-bus = "wing"
-id = 4
-channel = 4
-"#;
+/// Four servos, the elevator's failsafe a position (4 mm); outputs asked for at 40 Hz and
+/// missed after 400 ms.
+fn four_servos() -> Mapping {
+    Mapping::four_servos()
+        .with(
+            "[mavlink]",
+            "failsafe_timeout_ms = 400\noutput_rate_hz = 40",
+        )
+        .with("[telemetry]", "rate_hz = 10")
+        .with("[[bus]]", "baud = 115200")
+        .servo_with("elevator", "failsafe = 4.0")
+}
 
 const SECS: fn(u64) -> Duration = Duration::from_secs;
 
@@ -78,7 +47,7 @@ fn all_online(view: &lj9da_bridge::runtime::BridgeView) -> bool {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_ground_station_sees_the_bridge_and_every_servo() {
-    let chain = Chain::start(FOUR_SERVOS, true).await;
+    let chain = Chain::start(four_servos(), true).await;
     chain
         .wait_view("every servo online", SECS(10), all_online)
         .await;
@@ -152,7 +121,7 @@ async fn the_ground_station_sees_the_bridge_and_every_servo() {
 /// servos all the same: each comes online and shows its readings, with no message yet.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn before_any_autopilot_the_view_shows_every_servo_online_with_readings() {
-    let chain = Chain::start(FOUR_SERVOS, false).await;
+    let chain = Chain::start(four_servos(), false).await;
     chain
         .wait_view("every servo online, with a position", SECS(10), |v| {
             all_online(v) && v.servos.iter().all(|s| s.report.position_mm.is_some())
@@ -164,7 +133,7 @@ async fn before_any_autopilot_the_view_shows_every_servo_online_with_readings() 
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn failsafe_is_entered_and_left_and_both_are_announced() {
-    let chain = Chain::start(FOUR_SERVOS, true).await;
+    let chain = Chain::start(four_servos(), true).await;
     chain
         .wait_view("every servo online", SECS(10), all_online)
         .await;
@@ -209,7 +178,7 @@ async fn failsafe_is_entered_and_left_and_both_are_announced() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_servo_unplugged_and_back_is_reported_lost_then_back() {
-    let chain = Chain::start(FOUR_SERVOS, true).await;
+    let chain = Chain::start(four_servos(), true).await;
     chain
         .wait_view("every servo online", SECS(10), all_online)
         .await;
@@ -266,7 +235,7 @@ async fn a_servo_unplugged_and_back_is_reported_lost_then_back() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_overheating_servo_produces_one_warning_and_one_error() {
-    let chain = Chain::start(FOUR_SERVOS, true).await;
+    let chain = Chain::start(four_servos(), true).await;
     chain
         .wait_view("every servo online", SECS(10), all_online)
         .await;
@@ -402,34 +371,27 @@ async fn an_overheating_servo_produces_one_warning_and_one_error() {
 /// MAVLink 2 extension) are absent and read as 0 ("no output").
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn mavlink_1_outputs_drive_the_servos() {
-    let chain = Chain::start(FOUR_SERVOS, false).await;
-    let mut ap =
-        mavlink::connect_async::<MavMessage>(&format!("udpout:127.0.0.1:{}", chain.autopilot_port))
-            .await
-            .unwrap();
-    ap.set_protocol_version(MavlinkVersion::V1);
-    let header = MavHeader {
-        system_id: 3,
-        component_id: 1,
-        sequence: 0,
-    };
-    let hb = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-        mavtype: MavType::MAV_TYPE_QUADROTOR,
-        autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
-        ..Default::default()
-    });
+    let chain = Chain::start(four_servos(), false).await;
+    let ap = Autopilot::connect_with(
+        chain.autopilot_port,
+        AutopilotOptions {
+            ids: (3, 1),
+            heartbeat: heartbeat_of(MavType::MAV_TYPE_QUADROTOR, MavAutopilot::MAV_AUTOPILOT_PX4),
+            version: MavlinkVersion::V1,
+        },
+    )
+    .await;
     let sim = chain.sims[0].handle();
     let deadline = std::time::Instant::now() + SECS(10);
     loop {
-        ap.send(&header, &hb).await.unwrap();
-        let out = MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
-            servo1_raw: 1760, // +10 mm
-            servo2_raw: 1280, // −10 mm
-            servo3_raw: 900,  // PX4's disarmed value: outside 920–2120, hold
-            servo4_raw: 1520,
-            ..Default::default()
-        });
-        ap.send(&header, &out).await.unwrap();
+        ap.heartbeat().await;
+        ap.send(&outputs(&[
+            1760, // +10 mm
+            1280, // −10 mm
+            900,  // PX4's disarmed value: outside 920–2120, hold
+            1520,
+        ]))
+        .await;
         let (a, b) = (sim.snapshot(1).unwrap(), sim.snapshot(2).unwrap());
         if (a.position_mm - 10.0).abs() < 0.05 && (b.position_mm + 10.0).abs() < 0.05 {
             break;
@@ -444,8 +406,6 @@ async fn mavlink_1_outputs_drive_the_servos() {
     let s3 = sim.snapshot(3).unwrap();
     assert_eq!(s3.force, lj9da_sim::Force::Off);
     chain.stop().await;
-    let _ = sweep_us;
-    let _ = free_udp_port;
 }
 
 /// An autopilot that sends its outputs slower than asked (PX4's onboard link before the request
@@ -454,37 +414,28 @@ async fn mavlink_1_outputs_drive_the_servos() {
 /// parameters set it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn outputs_slower_than_asked_are_shown_recorded_and_said_once() {
-    let chain = Chain::start(FOUR_SERVOS, false).await;
-    let ap =
-        mavlink::connect_async::<MavMessage>(&format!("udpout:127.0.0.1:{}", chain.autopilot_port))
-            .await
-            .unwrap();
-    let header = MavHeader {
-        system_id: 1,
-        component_id: 1,
-        sequence: 0,
-    };
-    let hb = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-        mavtype: MavType::MAV_TYPE_FIXED_WING,
-        autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
-        ..Default::default()
-    });
-    let out = MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
-        servo1_raw: 1520,
-        servo2_raw: 1520,
-        servo3_raw: 1520,
-        servo4_raw: 1520,
-        ..Default::default()
-    });
+    let chain = Chain::start(four_servos(), false).await;
+    let ap = Autopilot::connect_with(
+        chain.autopilot_port,
+        AutopilotOptions {
+            heartbeat: heartbeat_of(
+                MavType::MAV_TYPE_FIXED_WING,
+                MavAutopilot::MAV_AUTOPILOT_PX4,
+            ),
+            ..AutopilotOptions::default()
+        },
+    )
+    .await;
+    let out = outputs(&[1520; 4]);
     // 10 Hz, against the 40 Hz the mapping asks for, for 9 s: past the 6 s a slow stream must
     // last before it is said. The pacing is the test's: a late tick makes the rate lower still.
     let mut tick = tokio::time::interval(Duration::from_millis(100));
     for n in 0u32..90 {
         tick.tick().await;
         if n.is_multiple_of(10) {
-            ap.send(&header, &hb).await.unwrap();
+            ap.heartbeat().await;
         }
-        ap.send(&header, &out).await.unwrap();
+        ap.send(&out).await;
     }
     {
         let view = chain.view.borrow();
@@ -531,7 +482,9 @@ async fn outputs_slower_than_asked_are_shown_recorded_and_said_once() {
 /// reply must be one the bridge had already given up on (see `bus_support::assert_line_kept`).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn at_the_production_allowance_the_line_is_kept_and_the_servos_follow() {
-    let mapping = FOUR_SERVOS.replace("turnaround_ms = 20\n", "");
+    let mapping = four_servos()
+        .without("[[bus]]", "turnaround_ms")
+        .to_string();
     assert!(!mapping.contains("turnaround_ms"));
     let chain = Chain::start(&mapping, true).await;
     let sim = chain.sims[0].handle();
