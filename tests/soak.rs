@@ -22,6 +22,8 @@
 
 mod common;
 
+use common::mapping::Mapping;
+use common::peer::{self, Autopilot, AutopilotOptions};
 use common::{Chain, ChainOptions, Heard};
 use lj9da_bridge::bus::Health;
 use lj9da_bridge::bus::quality;
@@ -29,59 +31,26 @@ use lj9da_bridge::runtime::BridgeView;
 use lj9da_sim::fault::XorShift64;
 use lj9da_sim::{BusEvent, Fault, FaultKind, Force, SimHandle};
 use mavlink::dialects::common::*;
-use mavlink::{AsyncMavConnection, MavHeader, MavlinkVersion};
+use mavlink::{MavHeader, MavlinkVersion};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicUsize, Ordering};
 use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
-use tokio::task::JoinHandle;
 
-const MAPPING: &str = r#"
-[mavlink]
-connection = "udpin:127.0.0.1:14560"
-failsafe_timeout_ms = 400
-output_rate_hz = 50
-
-[telemetry]
-rate_hz = 10
-
-[[bus]]
-name = "wing"
-port = "sim"
-baud = 115200
-# Two cores shared with other work: allow for a scheduler's hiccup.
-turnaround_ms = 20
-
-[[servo]]
-name = "aileron_left"
-label = "ail_l"
-bus = "wing"
-id = 1
-channel = 1
-
-[[servo]]
-name = "aileron_right"
-label = "ail_r"
-bus = "wing"
-id = 2
-channel = 2
-
-[[servo]]
-name = "elevator"
-label = "elev"
-bus = "wing"
-id = 3
-channel = 3
-failsafe = 22.0
-
-[[servo]]
-name = "rudder"
-bus = "wing"
-id = 4
-channel = 4
-"#;
+/// Four servos, the elevator's failsafe a position ([`ELEVATOR_FAILSAFE`]); outputs asked for
+/// at 50 Hz and missed after 400 ms.
+fn mapping() -> Mapping {
+    Mapping::four_servos()
+        .with(
+            "[mavlink]",
+            "failsafe_timeout_ms = 400\noutput_rate_hz = 50",
+        )
+        .with("[telemetry]", "rate_hz = 10")
+        .with("[[bus]]", "baud = 115200")
+        .servo_with("elevator", "failsafe = 22.0")
+}
 
 const NAMES: [&str; 4] = ["aileron_left", "aileron_right", "elevator", "rudder"];
 /// The elevator's failsafe position, 0.01 mm (outside the ±15 mm the steps use).
@@ -401,22 +370,6 @@ async fn expect_text(
     at.saturating_duration_since(since)
 }
 
-/// The autopilot, played by the test: HEARTBEAT at 1 Hz and SERVO_OUTPUT_RAW at 50 Hz (and at
-/// once when the goals change) from system 1, component 1.
-struct Autopilot {
-    conn: Arc<mavlink::AsyncConnection<MavMessage>>,
-    goals: watch::Sender<[i16; 4]>,
-    paused: Arc<AtomicBool>,
-    sent: Arc<AtomicU64>,
-    tasks: Vec<JoinHandle<()>>,
-}
-
-const AUTOPILOT: MavHeader = MavHeader {
-    system_id: 1,
-    component_id: 1,
-    sequence: 0,
-};
-
 fn heartbeat(autopilot: MavAutopilot) -> MavMessage {
     MavMessage::HEARTBEAT(HEARTBEAT_DATA {
         custom_mode: 0,
@@ -428,90 +381,21 @@ fn heartbeat(autopilot: MavAutopilot) -> MavMessage {
     })
 }
 
+/// SERVO_OUTPUT_RAW with `goals` on channels 1 to 4.
 fn outputs(goals: [i16; 4]) -> MavMessage {
-    MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
-        servo1_raw: pwm(goals[0]),
-        servo2_raw: pwm(goals[1]),
-        servo3_raw: pwm(goals[2]),
-        servo4_raw: pwm(goals[3]),
-        ..Default::default()
-    })
+    peer::outputs(&goals.map(pwm))
 }
 
-impl Autopilot {
-    async fn start(port: u16, goals: [i16; 4]) -> Autopilot {
-        let conn = Arc::new(
-            mavlink::connect_async::<MavMessage>(&format!("udpout:127.0.0.1:{port}"))
-                .await
-                .expect("autopilot socket"),
-        );
-        let (goals, mut goals_rx) = watch::channel(goals);
-        let paused = Arc::new(AtomicBool::new(false));
-        let sent = Arc::new(AtomicU64::new(0));
-        let (c, p, n) = (conn.clone(), paused.clone(), sent.clone());
-        let sender = tokio::spawn(async move {
-            let mut tick = tokio::time::interval(MS(20));
-            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-            let mut next_heartbeat = Instant::now();
-            loop {
-                tokio::select! {
-                    _ = tick.tick() => {}
-                    changed = goals_rx.changed() => {
-                        if changed.is_err() {
-                            return;
-                        }
-                    }
-                }
-                if Instant::now() >= next_heartbeat {
-                    next_heartbeat += S(1);
-                    let _ = c
-                        .send(
-                            &AUTOPILOT,
-                            &heartbeat(MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA),
-                        )
-                        .await;
-                }
-                if !p.load(Ordering::SeqCst) {
-                    let g = *goals_rx.borrow_and_update();
-                    if c.send(&AUTOPILOT, &outputs(g)).await.is_ok() {
-                        n.fetch_add(1, Ordering::Relaxed);
-                    }
-                }
-            }
-        });
-        // What the bridge sends the autopilot (stream requests, telemetry) is read and dropped.
-        let c = conn.clone();
-        let drain = tokio::spawn(async move {
-            loop {
-                if c.recv().await.is_err() {
-                    tokio::time::sleep(MS(10)).await;
-                }
-            }
-        });
-        Autopilot {
-            conn,
-            goals,
-            paused,
-            sent,
-            tasks: vec![sender, drain],
-        }
-    }
-
-    fn set(&self, goals: [i16; 4]) {
-        self.goals.send_replace(goals);
-    }
-
-    fn pause(&self, paused: bool) {
-        self.paused.store(paused, Ordering::SeqCst);
-    }
-}
-
-impl Drop for Autopilot {
-    fn drop(&mut self) {
-        for t in &self.tasks {
-            t.abort();
-        }
-    }
+/// The autopilot, played by the test: HEARTBEAT at 1 Hz and SERVO_OUTPUT_RAW at 50 Hz (and at
+/// once when the goals change) from system 1, component 1.
+async fn autopilot(port: u16, goals: [i16; 4]) -> Autopilot {
+    let options = AutopilotOptions {
+        heartbeat: heartbeat(MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA),
+        ..AutopilotOptions::default()
+    };
+    let mut ap = Autopilot::connect_with(port, options).await;
+    ap.stream(50, outputs(goals));
+    ap
 }
 
 /// What one phase did, for the log.
@@ -634,7 +518,7 @@ impl Soak {
         let events = self.sim.subscribe();
         let start = Instant::now();
         self.goals = goals;
-        self.ap.set(goals);
+        self.ap.set(outputs(goals));
         let took = self.reached(&events, goals, start, bound, what).await;
         self.step_latencies.push(took);
         took
@@ -1023,7 +907,7 @@ impl Soak {
         self.n += 1;
         let goals = goals_of(self.n);
         self.goals = goals;
-        self.ap.set(goals);
+        self.ap.set(outputs(goals));
         let stalled = expect_exact_text(
             &self.chain,
             start,
@@ -1319,7 +1203,7 @@ impl Soak {
         let flood_events = self.sim.subscribe();
         let flood = Instant::now();
         self.goals = last;
-        self.ap.set(last);
+        self.ap.set(outputs(last));
         let mut flood_sent = 0u32;
         for burst in 0..100 {
             for k in 0..50 {
@@ -1328,7 +1212,7 @@ impl Soak {
                 } else {
                     std::array::from_fn(|_| (rng.below(31) as i16 - 15) * 100)
                 };
-                if self.ap.conn.send(&AUTOPILOT, &outputs(goals)).await.is_ok() {
+                if self.ap.try_send(&outputs(goals)).await {
                     flood_sent += 1;
                 }
             }
@@ -1600,7 +1484,7 @@ async fn fault_soak() {
     let seconds = env_number("LJ9DA_SOAK_SECONDS").map(S);
     let started = Instant::now();
     let chain = Chain::start_opts(
-        MAPPING,
+        mapping(),
         ChainOptions {
             autopilot: false,
             stable_links: true,
@@ -1615,7 +1499,7 @@ async fn fault_soak() {
         sim.path().is_symlink(),
         "the bridge must open the stable symlink"
     );
-    let ap = Autopilot::start(chain.autopilot_port, goals_of(0)).await;
+    let ap = autopilot(chain.autopilot_port, goals_of(0)).await;
     let answers = AnswerLog::watch(chain.view.clone());
     let mut soak = Soak {
         chain,
@@ -1728,7 +1612,7 @@ async fn fault_soak() {
     );
     println!(
         "[soak] autopilot sent {} outputs; ground station heard {} messages",
-        soak.ap.sent.load(Ordering::Relaxed),
+        soak.ap.sent(),
         soak.chain.gcs.count()
     );
     println!(
