@@ -9,38 +9,20 @@
 
 mod common;
 
+use common::mapping::Mapping;
 use common::python::python;
 use common::{Chain, ChainOptions, free_udp_port};
+use std::fmt::Display;
 use std::path::PathBuf;
 use std::process::Command;
 use std::time::Duration;
 
-const MAPPING: &str = r#"
-[mavlink]
-connection = "udpin:127.0.0.1:14560"
-output_rate_hz = 40
-
-[telemetry]
-rate_hz = 10
-
-[[bus]]
-name = "wing"
-port = "sim"
-turnaround_ms = 20
-
-[[servo]]
-name = "aileron_left"
-label = "ail_l"
-bus = "wing"
-id = 1
-channel = 1
-
-[[servo]]
-name = "rudder"
-bus = "wing"
-id = 2
-channel = 4
-"#;
+/// The left aileron and the rudder; outputs asked for at 40 Hz, telemetry at 10 Hz.
+fn mapping() -> Mapping {
+    Mapping::aileron_and_rudder()
+        .with("[mavlink]", "output_rate_hz = 40")
+        .with("[telemetry]", "rate_hz = 10")
+}
 
 const LISTENER: &str = r#"
 import os, sys, time
@@ -70,13 +52,13 @@ print("names", *sorted(names))
 /// against that port for `seconds`, stop the chain, and return what the script printed
 /// (`what` names the script in failures).
 async fn run_beside_the_chain(script: &'static str, seconds: &'static str, what: &str) -> String {
-    run_beside(MAPPING, None, script, seconds, what).await
+    run_beside(mapping(), None, script, seconds, what).await
 }
 
 /// As [`run_beside_the_chain`], for `mapping`; with `file` (holding `mapping`) the bridge saves
 /// parameter changes there.
 async fn run_beside(
-    mapping: &str,
+    mapping: impl Display,
     file: Option<PathBuf>,
     script: &'static str,
     seconds: &'static str,
