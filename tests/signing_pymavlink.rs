@@ -17,6 +17,7 @@
 
 mod common;
 
+use common::mapping::Mapping;
 use common::python::python;
 use common::{Chain, ChainOptions, free_udp_port};
 use lj9da_bridge::runtime::BridgeView;
@@ -44,38 +45,14 @@ fn mapping(signing: &str, name: &str) -> (String, PathBuf) {
         std::process::id()
     ));
     let _ = std::fs::remove_file(&ts);
-    let text = format!(
-        r#"
-[mavlink]
-connection = "udpin:127.0.0.1:14560"
-system_id = 1
-output_rate_hz = 20
-{signing}
-signing_timestamp_file = "{}"
-
-[telemetry]
-rate_hz = 10
-
-[[bus]]
-name = "wing"
-port = "sim"
-turnaround_ms = 20
-
-[[servo]]
-name = "aileron_left"
-label = "ail_l"
-bus = "wing"
-id = 1
-channel = 1
-
-[[servo]]
-name = "rudder"
-bus = "wing"
-id = 2
-channel = 4
-"#,
+    let mavlink = format!(
+        "system_id = 1\noutput_rate_hz = 20\n{signing}\nsigning_timestamp_file = \"{}\"",
         ts.display()
     );
+    let text = Mapping::aileron_and_rudder()
+        .with("[mavlink]", &mavlink)
+        .with("[telemetry]", "rate_hz = 10")
+        .to_string();
     (text, ts)
 }
 
