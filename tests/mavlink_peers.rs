@@ -12,12 +12,13 @@
 
 mod common;
 
+use common::mapping::Mapping;
+use common::peer::{heartbeat, outputs};
 use common::{Chain, ChainOptions, free_udp_port};
 use lj9da_bridge::mavlink::signing::{Signed, Signing, SigningKey};
 use lj9da_bridge::runtime::MAPPING_WRITE_SPACING;
 use mavlink::dialects::common::{
-    HEARTBEAT_DATA, MavAutopilot, MavMessage, MavParamType, MavType, PARAM_REQUEST_READ_DATA,
-    PARAM_SET_DATA, SERVO_OUTPUT_RAW_DATA,
+    MavMessage, MavParamType, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA,
 };
 use mavlink::{MAVLinkMessageRaw, MAVLinkV2MessageRaw, MavHeader, MavlinkReader, Message};
 use std::path::PathBuf;
@@ -45,30 +46,15 @@ fn mapping(signed: bool, name: &str) -> String {
     } else {
         String::new()
     };
-    format!(
-        r#"
-[mavlink]
-connection = "udpin:127.0.0.1:14560"
-system_id = 1
-output_rate_hz = 20
-failsafe_timeout_ms = 5000
-{signing}
-
-[telemetry]
-rate_hz = 10
-
-[[bus]]
-name = "wing"
-port = "sim"
-turnaround_ms = 20
-
-[[servo]]
-name = "aileron"
-bus = "wing"
-id = 1
-channel = 1
-"#
-    )
+    Mapping::new()
+        .with(
+            "[mavlink]",
+            "system_id = 1\noutput_rate_hz = 20\nfailsafe_timeout_ms = 5000",
+        )
+        .with("[mavlink]", &signing)
+        .with("[telemetry]", "rate_hz = 10")
+        .servo("aileron", 1, 1)
+        .to_string()
 }
 
 /// A MAVLink peer on a UDP socket of its own: it sends frames (signed with [`KEY`] or not)
@@ -175,7 +161,7 @@ impl Peer {
                 "the bridge never found the autopilot"
             );
             self.send(port, &heartbeat()).await;
-            self.send(port, &outputs(1520)).await;
+            self.send(port, &outputs(&[1520])).await;
             tokio::time::sleep(Duration::from_millis(50)).await;
         }
     }
@@ -205,21 +191,6 @@ impl Drop for Peer {
     fn drop(&mut self) {
         self.task.abort();
     }
-}
-
-fn heartbeat() -> MavMessage {
-    MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-        mavtype: MavType::MAV_TYPE_FIXED_WING,
-        autopilot: MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
-        ..Default::default()
-    })
-}
-
-fn outputs(us: u16) -> MavMessage {
-    MavMessage::SERVO_OUTPUT_RAW(SERVO_OUTPUT_RAW_DATA {
-        servo1_raw: us,
-        ..Default::default()
-    })
 }
 
 /// The servo's goal, in mm, as the bus has it.
@@ -266,10 +237,10 @@ async fn a_signed_frame_replayed_on_the_ground_station_link_is_dropped_and_moves
     ap.announce(port, &chain).await;
     wait_goal(&chain, 0.0).await;
     // A frame of the autopilot's on its link, captured there.
-    let captured = ap.frame(&outputs(1900));
+    let captured = ap.frame(&outputs(&[1900]));
     ap.send_bytes(port, &captured).await;
     wait_goal(&chain, MM_1900).await;
-    ap.send(port, &outputs(1520)).await;
+    ap.send(port, &outputs(&[1520])).await;
     wait_goal(&chain, 0.0).await;
     // Played again on the ground-station link, within the minute a new stream is given.
     let attacker = Peer::new((9, 9), false).await;
@@ -306,7 +277,7 @@ async fn unsigned_datagrams_from_a_stranger_do_not_take_the_signed_peers_replies
     let mut sent = 0;
     while Instant::now() < until {
         stranger.send(port, &heartbeat()).await;
-        stranger.send(port, &outputs(1900)).await;
+        stranger.send(port, &outputs(&[1900])).await;
         stranger.send_bytes(port, &first_heartbeat).await;
         sent += 2;
         tokio::time::sleep(Duration::from_millis(50)).await;
@@ -361,7 +332,7 @@ async fn own_frames_count_without_gaps_and_the_relayed_heartbeat_keeps_its_numbe
     for &sequence in &sent {
         let hb = ap.frame_numbered(&heartbeat(), sequence);
         ap.send_bytes(port, &hb).await;
-        ap.send(port, &outputs(1520)).await;
+        ap.send(port, &outputs(&[1520])).await;
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     // Enough of both to judge: how soon the bridge has ten frames of its own to send depends
