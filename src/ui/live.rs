@@ -84,7 +84,7 @@ pub struct BusRow {
 /// Everything the live view shows.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct LiveModel {
-    /// The autopilot link: who, the output rate asked for, failsafe.
+    /// The autopilot link: who, the output rate asked for and received, failsafe.
     pub link: String,
     pub failsafe: bool,
     pub servos: Vec<ServoRow>,
