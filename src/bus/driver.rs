@@ -694,8 +694,9 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
     }
 }
 
-/// Open `path` at `baud`, 8N1, no flow control, not exclusive for `TIOCEXCL` (a pseudo-terminal
-/// in tests) but refused while another program holds it (see [`crate::serial::lock`]), non-blocking: reads return what has arrived, writes never wait; in RS485 mode when the bus
+/// Open `path` at `baud`, 8N1, no flow control, without `TIOCEXCL` (a pseudo-terminal in
+/// tests) but refused while another program holds it (see [`crate::serial::lock`]),
+/// non-blocking: reads return what has arrived, writes never wait; in RS485 mode when the bus
 /// asks for it (a refusal keeps the port closed). With it, the bus thread's [`ReplyWaiter`] on
 /// the same port.
 fn open_port(
