@@ -405,10 +405,9 @@ impl BridgeCore {
         }
     }
 
-    /// Count the stream's messages over windows of two seconds; a window at ≥ 70 % of the
-    /// requested rate means the stream runs as asked, whether or not an ACK said so.
-    /// A measurement window closed with `fastest` the fastest port's rate: a stream that
-    /// arrives at the rate asked is not asked for again.
+    /// A measurement window of the rate meter closed with `fastest` the fastest port's rate:
+    /// at ≥ 70 % of the rate asked the stream runs as asked, whether or not an ACK said so, and
+    /// is not asked for again. The meter's warning, if it has one, goes to the notes.
     fn judge_rate(&mut self, fastest: Option<f32>) {
         if fastest.is_some_and(|hz| hz >= LOW_SHARE * self.requested_rate_hz) {
             self.stream_ok = true;
