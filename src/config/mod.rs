@@ -105,17 +105,20 @@ impl Config {
         for (key, link) in self.mavlink.serial_links() {
             ports.push((format!("[mavlink] {key}"), Path::new(link)));
         }
-        let device = |p: &Path| resolve(p).unwrap_or_else(|| p.to_path_buf());
-        for (i, (who, port)) in ports.iter().enumerate() {
-            for (other, other_port) in &ports[..i] {
-                let (a, b) = (device(port), device(other_port));
-                if a == b {
+        // Each name followed once.
+        let devices: Vec<PathBuf> = ports
+            .iter()
+            .map(|(_, p)| resolve(p).unwrap_or_else(|| p.to_path_buf()))
+            .collect();
+        for (i, ((who, port), device)) in ports.iter().zip(&devices).enumerate() {
+            for ((other, other_port), other_device) in ports[..i].iter().zip(&devices) {
+                if device == other_device {
                     return Some(format!(
                         "{who} ({}) and {other} ({}) are one device, {}: a serial port carries \
                          one bus or one MAVLink link",
                         port.display(),
                         other_port.display(),
-                        a.display()
+                        device.display()
                     ));
                 }
             }
