@@ -28,14 +28,17 @@ struct SchedAttr {
     util_max: u32,
 }
 
-/// Ask for real-time scheduling of the calling thread: SCHED_FIFO at `priority`. Refused
-/// without CAP_SYS_NICE or an RLIMIT_RTPRIO of at least `priority`; the error is the kernel's.
+/// Ask for real-time scheduling of the calling thread: SCHED_FIFO at `priority`, for it alone
+/// (`SCHED_RESET_ON_FORK`: a thread or process it starts afterwards runs as a normal one).
+/// Refused without CAP_SYS_NICE or an RLIMIT_RTPRIO of at least `priority`; the error is the
+/// kernel's.
 pub fn request_fifo(priority: i32) -> io::Result<()> {
     let param = libc::sched_param {
         sched_priority: priority,
     };
+    let policy = libc::SCHED_FIFO | libc::SCHED_RESET_ON_FORK;
     // SAFETY: pid 0 is the calling thread; the kernel only reads `param`.
-    if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } == 0 {
+    if unsafe { libc::sched_setscheduler(0, policy, &param) } == 0 {
         Ok(())
     } else {
         Err(io::Error::last_os_error())
@@ -114,6 +117,25 @@ mod tests {
     fn real_time_scheduling_is_granted_or_refused_by_the_kernel() {
         if let Err(e) = in_a_thread(|| request_fifo(10)) {
             assert!(e.raw_os_error().is_some(), "not the kernel's: {e}");
+        }
+    }
+
+    /// The policy of the calling thread (`sched_getscheduler`), without the reset-on-fork flag.
+    fn policy() -> i32 {
+        // SAFETY: pid 0 is the calling thread; nothing is written.
+        unsafe { libc::sched_getscheduler(0) & !libc::SCHED_RESET_ON_FORK }
+    }
+
+    #[test]
+    fn a_thread_started_by_a_real_time_one_runs_as_a_normal_thread() {
+        let (granted, own, child) = in_a_thread(|| {
+            let granted = request_fifo(10).is_ok();
+            let child = std::thread::spawn(policy).join().expect("no panic");
+            (granted, policy(), child)
+        });
+        if granted {
+            assert_eq!(own, libc::SCHED_FIFO, "the thread that asked is real-time");
+            assert_eq!(child, libc::SCHED_OTHER, "its new thread is not");
         }
     }
 }
