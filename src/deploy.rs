@@ -127,10 +127,11 @@ StandardError=journal
 SyslogIdentifier=lj9da-bridge
 # Less scheduling jitter on the serial bus.
 Nice=-5
-# Each bus thread asks for real-time scheduling (SCHED_FIFO, priority 10) and the bridge locks
-# its memory, so that a goal is not kept waiting by other programs or a page fault; without
-# these grants it runs all the same, and says so once in the log. (On a kernel built with
-# CONFIG_RT_GROUP_SCHED, the service's cgroup also needs real-time time: cpu.rt_runtime_us.)
+# Each bus thread asks for real-time scheduling (SCHED_FIFO, priority 10), the thread that takes
+# the autopilot's messages too (priority 9), and the bridge locks its memory, so that a goal is
+# not kept waiting by other programs or a page fault; without these grants it runs all the
+# same, and says so once in the log. (On a kernel built with CONFIG_RT_GROUP_SCHED, the
+# service's cgroup also needs real-time time: cpu.rt_runtime_us.)
 AmbientCapabilities=CAP_SYS_NICE CAP_IPC_LOCK
 CapabilityBoundingSet=CAP_SYS_NICE CAP_IPC_LOCK
 LimitRTPRIO=10

@@ -341,3 +341,58 @@ fn a_bridge_that_hears_no_autopilot_says_so_and_where_it_listens() {
         "{line}"
     );
 }
+
+/// Each thread of process `pid`: its name, scheduling policy and real-time priority (fields 41
+/// and 40 of proc_pid_stat(5)), the main thread first.
+fn threads_of(pid: u32) -> Vec<(String, u32, u32)> {
+    let mut tids: Vec<u32> = std::fs::read_dir(format!("/proc/{pid}/task"))
+        .expect("the bridge's threads")
+        .filter_map(|e| e.ok()?.file_name().to_str()?.parse().ok())
+        .collect();
+    tids.sort_by_key(|tid| *tid != pid);
+    tids.into_iter()
+        .filter_map(|tid| {
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/task/{tid}/stat")).ok()?;
+            let name = stat[stat.find('(')? + 1..stat.rfind(')')?].to_string();
+            // The fields after the name begin with field 3 (state).
+            let after: Vec<&str> = stat[stat.rfind(')')? + 2..].split_whitespace().collect();
+            Some((name, after[41 - 3].parse().ok()?, after[40 - 3].parse().ok()?))
+        })
+        .collect()
+}
+
+#[test]
+fn the_mavlink_loop_and_the_bus_threads_run_real_time_and_nothing_else_does() {
+    // Whether this machine grants real-time scheduling to the test (and so to the bridge).
+    let granted = std::thread::spawn(|| lj9da_sim::realtime::request_fifo(1).is_ok())
+        .join()
+        .unwrap();
+    let mut bridge = Service::start("service-realtime", &[]);
+    assert!(
+        bridge.listen_until(PATIENCE, |h| h.iter().any(|(_, s)| is_ready(s))),
+        "no READY=1:\n{}",
+        bridge.transcript()
+    );
+    let threads = threads_of(bridge.child.id());
+    let fifo = nix::libc::SCHED_FIFO as u32;
+    let normal = nix::libc::SCHED_OTHER as u32;
+    let (main, rest) = threads.split_first().expect("a main thread");
+    let (buses, others): (Vec<_>, Vec<_>) = rest.iter().partition(|(n, ..)| n.starts_with("bus "));
+    assert_eq!(buses.len(), 2, "{threads:?}");
+    if granted {
+        assert_eq!((main.1, main.2), (fifo, 9), "the MAVLink loop: {threads:?}");
+        for bus in &buses {
+            assert_eq!((bus.1, bus.2), (fifo, 10), "{threads:?}");
+        }
+        for other in &others {
+            assert_eq!(other.1, normal, "{other:?} of {threads:?}");
+        }
+    } else {
+        assert!(threads.iter().all(|t| t.1 == normal), "{threads:?}");
+        assert!(
+            log_has(&bridge.heard, "without real-time scheduling").is_some(),
+            "{}",
+            bridge.transcript()
+        );
+    }
+}
