@@ -14,6 +14,9 @@
 //!   (ArduPilot during a parameter or log transfer), then comes back to 50 Hz;
 //! - `garbled`: the sweep with a fifth of servo 1's replies corrupted;
 //!
+//! and the two-port sweep and steps with no servo on port 1 (`x2pu`: most planes map channels
+//! 1–16 while the autopilot still sends port 1), whose port 0 goals should not wait for it;
+//!
 //! and the two-port sweep and steps at 460 800 bit/s (`@460k`), for the bridge's CPU at the
 //! servo's fastest rate. `E2E_TELEMETRY=max` (or a number) sets the bus's `telemetry_hz`.
 //!
@@ -33,6 +36,13 @@
 //!   measured" where /proc cannot be read); the CPU split by thread (`main/bus/rest`: the
 //!   MAVLink loop, the bus threads, the flight record's and the mapping file's writers) and
 //!   the main and bus threads' wake-ups a second (`wk/s m/b`: voluntary context switches);
+//! - on a second line: the machine's own stalls, as a probe thread per CPU that sleeps like the
+//!   bus thread saw them (wake-ups more than 0.5 ms late; see [`Probe`]), with the CPU time the
+//!   hypervisor stole meanwhile; idle spells (no request on the wire for more than three mean
+//!   request spacings: a bus thread that did not run, or a tick it waited for that did not
+//!   come) and how many no machine stall explains; port 0's and all goals' p99 without the
+//!   goals that waited beside a machine stall; and in two-port cases the share of ticks whose
+//!   two goals left in one long packet, with port 1's goal's lag behind port 0's;
 //! - talk-overs (a packet written while a servo replied; "(N sim)": of them, N where the
 //!   simulator read a packet together with a request before it, i.e. its thread was not run for
 //!   the reply allowance while the bridge timed the first out) and STATUSTEXTs of severity WARNING or
@@ -42,6 +52,8 @@
 //! is matched to the packet that carried it. Run: `cargo bench --bench e2e` (`E2E_SECONDS=N`
 //! sets the length of each case, default 6 s; `E2E_CASES=4x50,8x400` runs only those cases;
 //! `E2E_BRIDGE=path` runs another build of the bridge, e.g. the code before a change;
+//! `E2E_TRACE_LATE=1` lists every goal more than 1 ms late with its send on CLOCK_MONOTONIC,
+//! to line it up with `perf sched record -k CLOCK_MONOTONIC -a`;
 //! `E2E_GCS_HZ` sets the ground station's NAMED_VALUE_FLOAT rate, `[telemetry] rate_hz`,
 //! default 20 as in every earlier run of this bench; the bridge's own default is 1).
 
@@ -55,6 +67,10 @@ use std::io::Write;
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
+
+/// The sender spins for the last this-much before each send (see `run_case`): more than a
+/// sleeping thread's usual lateness on an idle virtual machine.
+const SEND_SPIN: Duration = Duration::from_micros(500);
 
 #[derive(Clone, Copy, PartialEq)]
 enum Jitter {
@@ -132,8 +148,11 @@ struct Case {
     rate_hz: f64,
     /// The bus's bit rate.
     baud: u32,
-    /// 1: every servo on port 0; 2: the last servo on channel 17 (port 1).
+    /// Ports the autopilot sends: 1, or 2 (SERVO_OUTPUT_RAW port 0 and port 1).
     ports: u8,
+    /// With two ports: the last servo is on channel 17 (port 1). Without, every servo is on
+    /// port 0 and port 1's messages carry nothing the bridge maps (most planes).
+    port1_mapped: bool,
     scenario: Scenario,
     hogs: usize,
 }
@@ -144,7 +163,11 @@ impl Case {
             "{}x{}{}{}{}",
             self.servos,
             self.rate_hz,
-            if self.ports == 2 { "x2p" } else { "" },
+            match (self.ports, self.port1_mapped) {
+                (2, true) => "x2p",
+                (2, false) => "x2pu",
+                _ => "",
+            },
             match self.scenario {
                 Scenario::Sweep(Jitter::None) => "",
                 Scenario::Sweep(Jitter::Uniform1Ms) => "j",
@@ -166,6 +189,23 @@ struct Outcome {
     lost: usize,
     /// Per port: latencies of the goals that reached the wire.
     latencies_us: [Vec<f64>; 2],
+    /// The same, without the goals that waited beside a stall of the machine's (see [`Probe`]).
+    unstalled_us: [Vec<f64>; 2],
+    /// The probe's stalls: how many, and the longest (µs).
+    stalls: usize,
+    /// Time the hypervisor ran other guests instead of this machine's CPUs (`steal` in
+    /// /proc/stat), in ms per second of run, summed over the CPUs (`None` where not told).
+    steal_ms_per_s: Option<f64>,
+    stall_max_us: f64,
+    /// Spells of more than three poll spacings with no request on the wire, and how many of
+    /// them no stall of the machine's explains.
+    idle_spells: usize,
+    idle_unstalled: usize,
+    /// Ticks whose two ports' goals both reached the wire, and how many went in one packet.
+    both_port_ticks: usize,
+    one_packet_ticks: usize,
+    /// Per such tick, how long after port 0's goal port 1's left (µs; 0 in one packet).
+    port1_lag_us: Vec<f64>,
     /// Port 0's latencies of the steps sent at least 1 s after a disturbance began or ended
     /// (`gap`, `rate`).
     settled_us: Vec<f64>,
@@ -186,6 +226,103 @@ struct Outcome {
     /// Of them, those the simulator's starved thread caused (see `starved` in `run_case`).
     collisions_sim_starved: usize,
     alarms: Vec<String>,
+}
+
+/// A wake-up of a [`Probe`] thread more than [`STALL`] after it was due: the machine did not
+/// run a thread that asked to run then (the bridge's bus thread asks the same way).
+const STALL: Duration = Duration::from_micros(500);
+/// How long a probe thread sleeps at a time: a poll's spacing of the bus thread at 4 servos
+/// and 50 Hz.
+const PROBE_SLEEP: Duration = Duration::from_millis(5);
+
+/// One thread of the bench's pinned to each CPU that sleeps like the bridge's bus thread
+/// (SCHED_FIFO where allowed, 1 µs timer slack, [`PROBE_SLEEP`] at a time) and notes every
+/// wake-up [`STALL`] late, as (due, woken). Its stalls are the machine's own (a virtual CPU the
+/// host did not run, a CPU held by a thread above the probe's priority); a goal that waited
+/// beside one is told apart from one the bridge alone delayed.
+struct Probe {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    threads: Vec<std::thread::JoinHandle<Vec<(Instant, Instant)>>>,
+}
+
+impl Probe {
+    fn start() -> Probe {
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let threads = (0..cpus)
+            .map(|cpu| {
+                let stop = std::sync::Arc::clone(&stop);
+                std::thread::spawn(move || {
+                    pin_to_cpu(cpu);
+                    let _ = nix::sys::prctl::set_timerslack(1_000);
+                    let _ = lj9da_sim::realtime::request_fifo(
+                        lj9da_bridge::bus::driver::REALTIME_PRIORITY,
+                    );
+                    let mut stalls = Vec::new();
+                    // Wake-ups on a fixed grid: a stall while the probe ran (between a wake-up
+                    // and its next sleep) still makes the next wake-up late.
+                    let mut due = Instant::now();
+                    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                        due += PROBE_SLEEP;
+                        std::thread::sleep(due.saturating_duration_since(Instant::now()));
+                        let woke = Instant::now();
+                        if woke.saturating_duration_since(due) > STALL {
+                            stalls.push((due, woke));
+                            while due + PROBE_SLEEP <= woke {
+                                due += PROBE_SLEEP;
+                            }
+                        }
+                    }
+                    stalls
+                })
+            })
+            .collect();
+        Probe { stop, threads }
+    }
+
+    /// Every CPU's stalls, by the instant they were due.
+    fn stop(self) -> Vec<(Instant, Instant)> {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        let mut all: Vec<(Instant, Instant)> = self
+            .threads
+            .into_iter()
+            .flat_map(|t| t.join().unwrap_or_default())
+            .collect();
+        all.sort();
+        all
+    }
+}
+
+/// The machine's CPU time stolen by the hypervisor so far, in seconds (`None` where /proc/stat
+/// does not tell).
+fn steal_s() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let steal: f64 = stat
+        .lines()
+        .next()?
+        .strip_prefix("cpu ")?
+        .split_whitespace()
+        .nth(7)?
+        .parse()
+        .ok()?;
+    Some(steal / 100.0) // USER_HZ on Linux
+}
+
+/// Keep the calling thread on CPU `cpu` (left as it is where refused).
+fn pin_to_cpu(cpu: usize) {
+    use nix::libc;
+    // SAFETY: a zeroed cpu_set_t is an empty set; CPU_SET writes within it for cpu < 1024;
+    // sched_setaffinity only reads it.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_SET(cpu, &mut set);
+        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set);
+    }
+}
+
+/// Whether a probe stall overlaps `from..=to`.
+fn beside_stall(stalls: &[(Instant, Instant)], from: Instant, to: Instant) -> bool {
+    stalls.iter().any(|(due, woke)| *due <= to && *woke >= from)
 }
 
 /// A small deterministic generator for the jittery autopilot.
@@ -257,7 +394,11 @@ fn mapping(case: &Case, port: &str, ap: u16, gcs: u16) -> String {
          [telemetry]\nrate_hz = {gcs_hz}\n[bridge]\non_exit = \"hold\"\n[[bus]]\nname = \"b\"\nport = \"{port}\"\nbaud = {baud}\n{telemetry}"
     );
     for i in 1..=servos {
-        let channel = if ports == 2 && i == servos { 17 } else { i };
+        let channel = if ports == 2 && case.port1_mapped && i == servos {
+            17
+        } else {
+            i
+        };
         s += &format!("[[servo]]\nname = \"s{i}\"\nbus = \"b\"\nid = {i}\nchannel = {channel}\n");
     }
     s
@@ -360,7 +501,11 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
     let text = mapping(case, &sim.path().display().to_string(), ap_port, gcs_port);
     std::fs::write(&cfg_path, &text).unwrap();
     // The servo whose goals mark each port's messages: servo 1 on port 0; on port 1 the last.
-    let marked = if case.ports == 2 { case.servos } else { 1 };
+    let marked = if case.ports == 2 && case.port1_mapped {
+        case.servos
+    } else {
+        1
+    };
     let config = Config::parse(&text, "bench").expect("bench mapping");
     let markers = [config.servos[0].clone(), config.servos[marked - 1].clone()];
     let goal_of =
@@ -429,10 +574,22 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
     let (cpu0, _) = cpu_and_rss(pid);
     let split0 = thread_split(pid);
     let t_start = Instant::now();
+    let steal0 = steal_s();
+    let probe = Probe::start();
 
     let schedule = schedule(case, seconds, Instant::now() + Duration::from_millis(20));
     let mut sends: Vec<Send> = Vec::with_capacity(schedule.len());
     for (k, m) in schedule.into_iter().enumerate() {
+        // Sleep to within SEND_SPIN of the send, then spin to it: the autopilot's sends are
+        // timed to a few µs, and the sender does not keep a core busy between them (an
+        // autopilot does not run on the companion computer; a sender that spun for the whole
+        // period would be a CPU hog of the bench's own in every "quiet" case).
+        if let Some(sleep) =
+            m.at.checked_duration_since(Instant::now())
+                .and_then(|left| left.checked_sub(SEND_SPIN))
+        {
+            std::thread::sleep(sleep);
+        }
         while Instant::now() < m.at {
             std::hint::spin_loop();
         }
@@ -442,18 +599,22 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
         let msg = outputs(case.servos, marked, m.port, m.value);
         let t = Instant::now();
         ap.send(&header, &msg).expect("send");
-        if m.changed {
+        // Port 1's messages are measured only where a servo is on it.
+        if m.changed && (m.port == 0 || marked != 1) {
             let servo = if m.port == 0 { 1 } else { marked };
             sends.push(Send {
                 at: t,
                 port: usize::from(m.port),
                 goal: goal_of(usize::from(m.port), pwm(servo, m.value, marked)),
                 settled: m.settled,
+                tick: m.tick,
             });
         }
     }
     std::thread::sleep(Duration::from_millis(300));
+    let stalls = probe.stop();
     let run_time = t_start.elapsed().as_secs_f64();
+    let steal_ms_per_s = steal0.zip(steal_s()).map(|(a, b)| (b - a) * 1e3 / run_time);
     let (cpu1, rss) = cpu_and_rss(pid);
     let split1 = thread_split(pid);
 
@@ -585,6 +746,7 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
         .count();
     let (mut on_wire, mut superseded, mut lost) = (0, 0, 0);
     let mut latencies_us = [Vec::new(), Vec::new()];
+    let mut unstalled_us = [Vec::new(), Vec::new()];
     let mut settled_us = Vec::new();
     for (k, m) in sends.iter().enumerate() {
         match carried[k] {
@@ -592,6 +754,9 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
                 on_wire += 1;
                 let us = at.duration_since(m.at).as_secs_f64() * 1e6;
                 latencies_us[m.port].push(us);
+                if !beside_stall(&stalls, m.at, at) {
+                    unstalled_us[m.port].push(us);
+                }
                 if m.settled && m.port == 0 {
                     settled_us.push(us);
                 }
@@ -600,6 +765,62 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
             None => lost += 1,
         }
     }
+    // `E2E_TRACE_LATE=1`: every goal that left more than 1 ms after its message, with the
+    // message's send on CLOCK_MONOTONIC (the clock of `perf sched record -k CLOCK_MONOTONIC`)
+    // and the last request on the wire before it, to line the goal up with a trace.
+    if std::env::var_os("E2E_TRACE_LATE").is_some() {
+        let (now, mono) = (Instant::now(), monotonic_now());
+        let mono_of = |t: Instant| mono - now.saturating_duration_since(t).as_secs_f64();
+        for (k, m) in sends.iter().enumerate() {
+            let Some(at) = carried[k] else { continue };
+            let late = at.duration_since(m.at);
+            if late > Duration::from_millis(1) {
+                let last_request = requests.iter().rev().find(|(start, _)| *start <= m.at);
+                eprintln!(
+                    "late goal: sent {:.6} port {} on wire {:.0} µs later; last request began {:.0} µs before the send{}",
+                    mono_of(m.at),
+                    m.port,
+                    late.as_secs_f64() * 1e6,
+                    last_request.map_or(f64::NAN, |(s, _)| m.at.duration_since(*s).as_secs_f64()
+                        * 1e6),
+                    if beside_stall(&stalls, m.at, at) {
+                        "; beside a machine stall"
+                    } else {
+                        ""
+                    },
+                );
+            }
+        }
+    }
+    // Ticks that carried both ports: one packet, or port 1 behind port 0 by how much.
+    let mut port0_at: std::collections::HashMap<usize, Instant> = std::collections::HashMap::new();
+    for (k, m) in sends.iter().enumerate() {
+        if m.port == 0
+            && let Some(at) = carried[k]
+        {
+            port0_at.insert(m.tick, at);
+        }
+    }
+    let mut port1_lag_us = Vec::new();
+    for (k, m) in sends.iter().enumerate() {
+        if m.port == 1
+            && let (Some(at1), Some(at0)) = (carried[k], port0_at.get(&m.tick))
+        {
+            port1_lag_us.push(at1.saturating_duration_since(*at0).as_secs_f64() * 1e6);
+        }
+    }
+    let one_packet_ticks = port1_lag_us.iter().filter(|lag| **lag == 0.0).count();
+    // Spells with no request on the wire for more than three mean spacings of requests.
+    let spacing = Duration::from_secs_f64(run_time / requests.len().max(1) as f64);
+    let spells: Vec<(Instant, Instant)> = requests
+        .windows(2)
+        .map(|w| (w[0].0, w[1].0))
+        .filter(|(a, b)| b.saturating_duration_since(*a) > spacing * 3)
+        .collect();
+    let idle_unstalled = spells
+        .iter()
+        .filter(|(a, b)| !beside_stall(&stalls, *a, *b))
+        .count();
     let _ = Command::new("kill")
         .args(["-TERM", &pid.to_string()])
         .status();
@@ -616,6 +837,18 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
         superseded,
         lost,
         latencies_us,
+        unstalled_us,
+        stalls: stalls.len(),
+        steal_ms_per_s,
+        stall_max_us: stalls
+            .iter()
+            .map(|(due, woke)| woke.duration_since(*due).as_secs_f64() * 1e6)
+            .fold(0.0, f64::max),
+        idle_spells: spells.len(),
+        idle_unstalled,
+        both_port_ticks: port1_lag_us.len(),
+        one_packet_ticks,
+        port1_lag_us,
         settled_us,
         behind,
         polls_hz: polls as f64 / run_time / case.servos as f64,
@@ -656,6 +889,8 @@ struct Message {
     changed: bool,
     /// Sent at least 1 s after the scenario's disturbance began or ended.
     settled: bool,
+    /// The autopilot's tick it belongs to.
+    tick: usize,
 }
 
 /// A measured message as it was sent.
@@ -664,6 +899,8 @@ struct Send {
     port: usize,
     goal: i16,
     settled: bool,
+    /// The autopilot's tick it belongs to (both ports' messages of a tick share it).
+    tick: usize,
 }
 
 /// The messages of `case` from `t0`, in send order.
@@ -717,6 +954,7 @@ fn schedule(case: &Case, seconds: f64, t0: Instant) -> Vec<Message> {
                 value,
                 changed,
                 settled,
+                tick: i,
             });
         }
     }
@@ -735,6 +973,12 @@ fn outputs(servos: usize, marked: usize, port: u8, i: usize) -> MavMessage {
         }
     }
     servo_output_raw(port, raw, 0)
+}
+
+/// CLOCK_MONOTONIC now, in seconds.
+fn monotonic_now() -> f64 {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
+        .map_or(f64::NAN, |t| t.tv_sec() as f64 + t.tv_nsec() as f64 * 1e-9)
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
@@ -806,6 +1050,7 @@ fn main() {
             rate_hz,
             baud: 115_200,
             ports: 1,
+            port1_mapped: false,
             scenario: Scenario::Sweep(Jitter::None),
             hogs: 0,
         });
@@ -825,6 +1070,21 @@ fn main() {
                 rate_hz: 50.0,
                 baud: 115_200,
                 ports: 2,
+                port1_mapped: true,
+                scenario,
+                hogs: h,
+            });
+        }
+    }
+    // Port 1 sent but mapped to no servo (most planes): port 0's goals wait for nothing.
+    for scenario in [Scenario::Sweep(Jitter::None), Scenario::Steps] {
+        for h in [0, hogs] {
+            cases.push(Case {
+                servos: 4,
+                rate_hz: 50.0,
+                baud: 115_200,
+                ports: 2,
+                port1_mapped: false,
                 scenario,
                 hogs: h,
             });
@@ -838,6 +1098,7 @@ fn main() {
                 rate_hz: 50.0,
                 baud: 460_800,
                 ports: 2,
+                port1_mapped: true,
                 scenario,
                 hogs: h,
             });
@@ -914,6 +1175,34 @@ fn main() {
             },
             o.alarms.len(),
         );
+        for l in &mut o.unstalled_us {
+            l.sort_by(f64::total_cmp);
+        }
+        let mut all_unstalled: Vec<f64> = o.unstalled_us.concat();
+        all_unstalled.sort_by(f64::total_cmp);
+        o.port1_lag_us.sort_by(f64::total_cmp);
+        println!(
+            "    machine stalls {} (max {} µs, steal {} ms/s); idle spells {} ({} beside no stall); beside no stall: p0 p99 {}, all p99 {} µs{}",
+            o.stalls,
+            us(o.stall_max_us),
+            o.steal_ms_per_s
+                .map_or("n/m".to_string(), |s| format!("{s:.1}")),
+            o.idle_spells,
+            o.idle_unstalled,
+            us(percentile(&o.unstalled_us[0], 0.99)),
+            us(percentile(&all_unstalled, 0.99)),
+            if o.both_port_ticks > 0 {
+                format!(
+                    "; one packet in {:.1}% of {} two-port ticks, port 1 behind port 0 p50/p99 {}/{} µs",
+                    o.one_packet_ticks as f64 * 100.0 / o.both_port_ticks as f64,
+                    o.both_port_ticks,
+                    us(percentile(&o.port1_lag_us, 0.5)),
+                    us(percentile(&o.port1_lag_us, 0.99)),
+                )
+            } else {
+                String::new()
+            },
+        );
         for a in &o.alarms {
             println!("    alarm heard: {a}");
         }
@@ -921,6 +1210,9 @@ fn main() {
     }
     println!(
         "latencies in µs, from the autopilot's send to the first byte of the long packet; n/m: not measured (/proc unreadable)"
+    );
+    println!(
+        "machine stalls: wake-ups of the bench's probe threads (one per CPU, sleeping 5 ms at a time like the bus thread) more than 0.5 ms late; idle spells: more than three mean request spacings with no request on the wire; beside no stall: goals whose wait no machine stall overlapped"
     );
     println!(
         "behind: measured messages sent while a request and its reply held the wire; polls: position-and-current reads per servo per second; s1 ok: servo 1's good replies per second; settled: port 0 p50/p90 of the steps 1 s or more after a disturbance began or ended"
