@@ -58,6 +58,11 @@ const MAX_QUEUED_EVENTS: usize = 1024;
 /// Allowed besides wire time and return delay for the servo and the adapter to react, when
 /// judging whether a request ends before the next goal.
 const REACTION: Duration = Duration::from_micros(150);
+/// A reply garbled in its header frees the bus this many byte times (and the lateness learned for
+/// replies) after the latest byte read, once as many bytes as the reply has were read (see
+/// `BusMaster::hold_for_garbled_bytes`): the tail of a reply that this many bytes of noise
+/// came before is then off the wire, and in the driver's hands.
+pub const QUIET_AFTER_GARBLED_BYTES: usize = 4;
 
 /// A request on the wire whose reply is awaited.
 #[derive(Debug, Clone, Copy)]
@@ -78,6 +83,12 @@ struct Pending {
     /// (see [`BusMaster::reply_spent`]).
     received_before: u64,
     skipped_before: u64,
+    /// When the request has left the wire: no byte read before is the servo's.
+    request_ends: Instant,
+    /// The deadline first given: the reply allowance's end.
+    allowance: Instant,
+    /// Bytes read since the request left the wire that were not its echo, garbage included.
+    heard: u64,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -226,8 +237,16 @@ impl BusMaster {
     pub fn handle_input(&mut self, bytes: &[u8], now: Instant) {
         self.touch(now);
         self.counters.bytes_received += bytes.len() as u64;
+        let echoes_before = self.counters.echo_bytes;
         self.decoder.push(bytes);
         self.drain_decoder(now);
+        let echoed = self.counters.echo_bytes - echoes_before;
+        if let Some(p) = self.pending.as_mut()
+            && now >= p.request_ends
+        {
+            p.heard += (bytes.len() as u64).saturating_sub(echoed);
+        }
+        self.hold_for_garbled_bytes(now);
         if self.reply_spent(now)
             && let Some(p) = self.pending.as_mut()
         {
@@ -331,6 +350,27 @@ impl BusMaster {
         let received = self.counters.bytes_received - p.received_before;
         let skipped = self.skipped_bytes() - p.skipped_before;
         now >= p.complete_at && received.saturating_sub(skipped) >= p.expected.wire_len() as u64
+    }
+
+    /// The servo awaited may have sent a reply whose header was garbled: the decoder skips its
+    /// bytes as garbage, one by one, and no reply comes out. Once as many bytes as the reply has
+    /// were read since the request left the wire, from the reply's earliest end on, the bus is
+    /// free [`QUIET_AFTER_GARBLED_BYTES`] byte times after the latest of them, and the lateness
+    /// learned for replies (an adapter that holds bytes back; see
+    /// [`BusMaster::reply_look_at`]); a later byte moves that on. That is instead of the end
+    /// of the reply allowance. Bytes of noise before the reply count as its bytes, so the tail
+    /// of the real reply may still be on the wire when the count is reached: up to that many
+    /// bytes of noise, it is off the wire, and read, before the bus is free. A clean reply
+    /// still ends the request at once.
+    fn hold_for_garbled_bytes(&mut self, now: Instant) {
+        let quiet = self.cfg.wire_time(QUIET_AFTER_GARBLED_BYTES) + self.reply_lateness;
+        if let Some(p) = self.pending.as_mut()
+            && now >= p.complete_at
+            && p.heard >= p.expected.wire_len() as u64
+        {
+            p.garbled = true;
+            p.deadline = p.allowance.min(now + quiet);
+        }
     }
 
     /// A whole return packet with a bad sum came in. When it is the reply awaited (its servo,
@@ -452,6 +492,8 @@ impl BusMaster {
         if let Some(p) = self.pending.as_mut() {
             p.complete_at += shift;
             p.deadline += shift;
+            p.allowance += shift;
+            p.request_ends += shift;
         }
     }
 
@@ -765,6 +807,7 @@ impl BusMaster {
         if expected.wire_len() > 0 {
             let complete_at =
                 self.wire_free_at + return_delay + self.cfg.wire_time(expected.wire_len());
+            let deadline = complete_at + self.cfg.turnaround;
             self.pending = Some(Pending {
                 index: i,
                 tx,
@@ -772,9 +815,12 @@ impl BusMaster {
                 complete_at,
                 looked: false,
                 garbled: false,
-                deadline: complete_at + self.cfg.turnaround,
+                deadline,
                 received_before: self.counters.bytes_received,
                 skipped_before: self.skipped_bytes(),
+                request_ends: self.wire_free_at,
+                allowance: deadline,
+                heard: 0,
             });
         }
         Transmit {

@@ -1,10 +1,13 @@
 //! What the decoder makes of bytes that are not the awaited reply: echoes of the request and
 //! garbage on the line are skipped; a reply with a bad sum, or garbled in its length, frees
-//! the bus once as many bytes as a reply have come and counts as a timeout; a garbled reply
+//! the bus once as many bytes as a reply have come and counts as a timeout; one garbled in its
+//! header, a few byte times after them (never under the tail of a reply that noise came
+//! before); a garbled reply
 //! from another servo or of another length, and a clean reply from another servo, leave the
 //! request waiting.
 
 use super::*;
+use crate::bus::master::QUIET_AFTER_GARBLED_BYTES;
 
 #[test]
 fn echoes_and_garbage_on_the_line_are_skipped() {
@@ -121,4 +124,76 @@ fn a_reply_from_another_servo_is_not_taken_for_the_one_awaited() {
     rig.m.handle_input(&reply, t0 + ms(4));
     assert!(rig.m.reply_pending());
     assert_eq!(rig.m.counters().unexpected_replies, 1);
+}
+
+#[test]
+fn a_reply_garbled_in_its_header_frees_the_bus_a_few_byte_times_after_its_end() {
+    let mut rig = Rig::with_ids(&[1]);
+    let t0 = rig.t0;
+    let _ = rig.m.poll_transmit(t0).unwrap();
+    let mut reply = registers_reply(1, 30, false);
+    // The header spoiled: every byte of the reply is skipped as garbage.
+    reply[0] ^= 0x0F;
+    let complete_at = rig.m.reply_complete_at().unwrap();
+    let allowance_ends = rig.m.poll_timeout().unwrap();
+    rig.m.handle_input(&reply, complete_at);
+    assert!(rig.m.reply_pending(), "the line is not yet known quiet");
+    let frees = complete_at + rig.wire(QUIET_AFTER_GARBLED_BYTES) + rig.m.reply_lateness();
+    assert_eq!(rig.m.poll_timeout(), Some(frees));
+    assert!(frees < allowance_ends);
+    rig.m.handle_timeout(frees);
+    assert!(!rig.m.reply_pending());
+    assert_eq!(rig.m.counters().timeouts, 1);
+    assert!(rig.m.poll_transmit(frees).is_some(), "the next request");
+}
+
+#[test]
+fn noise_before_a_reply_garbled_in_its_header_never_frees_the_bus_under_its_tail() {
+    let mut rig = Rig::with_ids(&[1]);
+    let t0 = rig.t0;
+    let _ = rig.m.poll_transmit(t0).unwrap();
+    let mut reply = registers_reply(1, 30, false);
+    reply[0] ^= 0x0F;
+    let complete_at = rig.m.reply_complete_at().unwrap();
+    // A byte of noise as the transceivers turn round, then the reply but its last byte: as
+    // many bytes as a reply, read when the last one is still on the wire.
+    rig.m
+        .handle_input(&[0x00], complete_at - rig.wire(reply.len()));
+    let (most, last) = reply.split_at(reply.len() - 1);
+    rig.m.handle_input(most, complete_at);
+    let tail_ends = complete_at + rig.wire(1);
+    assert!(
+        rig.m.poll_timeout().is_some_and(|t| t >= tail_ends),
+        "the bus is held while the tail is on the wire"
+    );
+    // The tail comes: the bus is free a few byte times after it.
+    rig.m.handle_input(last, tail_ends);
+    assert!(rig.m.reply_pending());
+    let frees = tail_ends + rig.wire(QUIET_AFTER_GARBLED_BYTES) + rig.m.reply_lateness();
+    assert_eq!(rig.m.poll_timeout(), Some(frees));
+    rig.m.handle_timeout(frees);
+    assert!(!rig.m.reply_pending());
+}
+
+#[test]
+fn bytes_read_before_the_request_left_the_wire_are_not_taken_for_the_reply() {
+    let mut rig = Rig::with_ids(&[1]);
+    rig.echo = false;
+    let t0 = rig.t0;
+    let request = rig.m.poll_transmit(t0).unwrap();
+    let allowance_ends = rig.m.poll_timeout().unwrap();
+    let complete_at = rig.m.reply_complete_at().unwrap();
+    // A garbled echo of the request, read while the request was still on the wire, and a
+    // reply's length of noise after it: too few bytes after the request to be a whole reply.
+    let garbled_echo = vec![0x55; request.bytes.len()];
+    rig.m.handle_input(&garbled_echo, t0);
+    let mut reply = registers_reply(1, 30, false);
+    reply[0] ^= 0x0F;
+    let (most, _) = reply.split_at(reply.len() - request.bytes.len());
+    rig.m.handle_input(most, complete_at);
+    assert_eq!(
+        rig.m.poll_timeout(),
+        Some(allowance_ends),
+        "the reply's bytes have not all come"
+    );
 }
