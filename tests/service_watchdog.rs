@@ -356,7 +356,11 @@ fn threads_of(pid: u32) -> Vec<(String, u32, u32)> {
             let name = stat[stat.find('(')? + 1..stat.rfind(')')?].to_string();
             // The fields after the name begin with field 3 (state).
             let after: Vec<&str> = stat[stat.rfind(')')? + 2..].split_whitespace().collect();
-            Some((name, after[41 - 3].parse().ok()?, after[40 - 3].parse().ok()?))
+            Some((
+                name,
+                after[41 - 3].parse().ok()?,
+                after[40 - 3].parse().ok()?,
+            ))
         })
         .collect()
 }
