@@ -360,11 +360,15 @@ impl BusMaster {
     /// [`BusMaster::reply_look_at`]); a later byte moves that on. That is instead of the end
     /// of the reply allowance. Bytes of noise before the reply count as its bytes, so the tail
     /// of the real reply may still be on the wire when the count is reached: up to that many
-    /// bytes of noise, it is off the wire, and read, before the bus is free. A clean reply
-    /// still ends the request at once.
+    /// bytes of noise, it is off the wire, and read, before the bus is free. While the decoder
+    /// holds the start of a reply whose rest has not come, the allowance stands: the noise,
+    /// not the reply, made up the count. A clean reply still ends the request at once.
     fn hold_for_garbled_bytes(&mut self, now: Instant) {
         let quiet = self.cfg.wire_time(QUIET_AFTER_GARBLED_BYTES) + self.reply_lateness;
+        // A reply begun in the decoder is left its allowance: noise before it made the count.
+        let reply_begun = self.decoder.buffered() > 0;
         if let Some(p) = self.pending.as_mut()
+            && !reply_begun
             && now >= p.complete_at
             && p.heard >= p.expected.wire_len() as u64
         {

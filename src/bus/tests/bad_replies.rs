@@ -2,9 +2,8 @@
 //! garbage on the line are skipped; a reply with a bad sum, or garbled in its length, frees
 //! the bus once as many bytes as a reply have come and counts as a timeout; one garbled in its
 //! header, a few byte times after them (never under the tail of a reply that noise came
-//! before); a garbled reply
-//! from another servo or of another length, and a clean reply from another servo, leave the
-//! request waiting.
+//! before, nor of one begun); a garbled reply from another servo or of another length, and a
+//! clean reply from another servo, leave the request waiting.
 
 use super::*;
 use crate::bus::master::QUIET_AFTER_GARBLED_BYTES;
@@ -196,4 +195,31 @@ fn bytes_read_before_the_request_left_the_wire_are_not_taken_for_the_reply() {
         Some(allowance_ends),
         "the reply's bytes have not all come"
     );
+}
+
+#[test]
+fn noise_before_a_clean_reply_that_comes_in_two_reads_leaves_the_reply_its_time() {
+    let mut rig = Rig::with_ids(&[1]);
+    let t0 = rig.t0;
+    let _ = rig.m.poll_transmit(t0).unwrap();
+    let reply = registers_reply(1, 30, false);
+    let complete_at = rig.m.reply_complete_at().unwrap();
+    // Eight bytes of noise, then the reply in two reads a USB adapter's millisecond apart:
+    // after the first, as many bytes as a reply have come, but the decoder holds the reply
+    // begun.
+    rig.m.handle_input(
+        &[0x00, 0xFF, 0x07, 0xFD, 0x11, 0xFA, 0x12, 0x34],
+        t0 + ms(1),
+    );
+    let (first, rest) = reply.split_at(reply.len() - 8);
+    rig.m.handle_input(first, complete_at);
+    let second_read = complete_at + ms(1);
+    assert!(
+        rig.m.poll_timeout().is_some_and(|t| t > second_read),
+        "the bus is held for the rest of the reply begun"
+    );
+    rig.m.handle_timeout(second_read);
+    rig.m.handle_input(rest, second_read);
+    assert!(!rig.m.reply_pending());
+    assert_eq!(rig.m.counters().timeouts, 0, "the reply was taken");
 }
