@@ -38,15 +38,19 @@
 //!   the main and bus threads' wake-ups a second (`wk/s m/b`: voluntary context switches);
 //! - on a second line: the machine's own stalls, as a probe thread per CPU that sleeps like the
 //!   bus thread saw them (wake-ups more than 0.5 ms late; see [`Probe`]), with the CPU time the
-//!   hypervisor stole meanwhile; idle spells (no request on the wire for more than three mean
-//!   request spacings: a bus thread that did not run, or a tick it waited for that did not
-//!   come) and how many no machine stall explains; port 0's and all goals' p99 without the
-//!   goals that waited beside a machine stall; and in two-port cases the share of ticks whose
-//!   two goals left in one long packet, with port 1's goal's lag behind port 0's;
+//!   hypervisor stole meanwhile; idle spells (no request on the wire for more than three poll
+//!   periods: a bus thread that did not run, or a tick it waited for that did not come) and
+//!   how many no machine stall explains; port 0's and all goals' p99 without the goals that
+//!   waited beside a machine stall; and in two-port cases the share of ticks (both messages
+//!   sent within 0.5 ms) whose two goals left in one long packet, with port 1's goal's lag
+//!   behind port 0's;
 //! - talk-overs (a packet written while a servo replied; "(N sim)": of them, N where the
 //!   simulator read a packet together with a request before it, i.e. its thread was not run for
 //!   the reply allowance while the bridge timed the first out) and STATUSTEXTs of severity WARNING or
 //!   worse heard by the ground station (none is true of healthy simulated servos).
+//!
+//! The sender stands for the autopilot, another computer: it runs at a real-time priority
+//! above the bridge's where granted, sleeps between sends and spins only for the last 0.5 ms.
 //!
 //! Every message gives servo 1 a goal that no other message in the window has, so each message
 //! is matched to the packet that carried it. Run: `cargo bench --bench e2e` (`E2E_SECONDS=N`
@@ -67,6 +71,9 @@ use std::io::Write;
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
+
+/// The sender's real-time priority: above the bridge's bus threads and the simulator's.
+const SENDER_PRIORITY: i32 = lj9da_bridge::bus::driver::REALTIME_PRIORITY + 10;
 
 /// The sender spins for the last this-much before each send (see `run_case`): more than a
 /// sleeping thread's usual lateness on an idle virtual machine.
@@ -197,15 +204,18 @@ struct Outcome {
     /// /proc/stat), in ms per second of run, summed over the CPUs (`None` where not told).
     steal_ms_per_s: Option<f64>,
     stall_max_us: f64,
-    /// Spells of more than three poll spacings with no request on the wire, and how many of
-    /// them no stall of the machine's explains.
-    idle_spells: usize,
-    idle_unstalled: usize,
+    /// Spells of more than three poll periods with no request on the wire, and how many of
+    /// them no stall of the machine's explains; `None` where the bus bunches its reads
+    /// after each tick (at 460 800 bit/s four reads take 2.5 ms), so that every tick has one
+    /// long gap by design.
+    idle_spells: Option<(usize, usize)>,
     /// Ticks whose two ports' goals both reached the wire, and how many went in one packet.
     both_port_ticks: usize,
     one_packet_ticks: usize,
     /// Per such tick, how long after port 0's goal port 1's left (µs; 0 in one packet).
     port1_lag_us: Vec<f64>,
+    /// Ticks left out of those: port 1's message sent more than 0.5 ms after port 0's.
+    split_sends: usize,
     /// Port 0's latencies of the steps sent at least 1 s after a disturbance began or ended
     /// (`gap`, `rate`).
     settled_us: Vec<f64>,
@@ -577,6 +587,10 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
     let steal0 = steal_s();
     let probe = Probe::start();
 
+    // The autopilot is another computer: its sends keep their time whatever the companion
+    // computer runs. The sender asks for a real-time priority above the bridge's and the
+    // simulator's (where granted; the send instants are measured either way).
+    let _ = lj9da_sim::realtime::request_fifo(SENDER_PRIORITY);
     let schedule = schedule(case, seconds, Instant::now() + Duration::from_millis(20));
     let mut sends: Vec<Send> = Vec::with_capacity(schedule.len());
     for (k, m) in schedule.into_iter().enumerate() {
@@ -793,25 +807,34 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
         }
     }
     // Ticks that carried both ports: one packet, or port 1 behind port 0 by how much.
-    let mut port0_at: std::collections::HashMap<usize, Instant> = std::collections::HashMap::new();
+    // Only ticks whose port 1 message was sent within 0.5 ms of port 0's count: a sender
+    // held up between them is not one tick any more.
+    let mut port0: std::collections::HashMap<usize, (Instant, Instant)> =
+        std::collections::HashMap::new();
     for (k, m) in sends.iter().enumerate() {
         if m.port == 0
             && let Some(at) = carried[k]
         {
-            port0_at.insert(m.tick, at);
+            port0.insert(m.tick, (m.at, at));
         }
     }
     let mut port1_lag_us = Vec::new();
+    let mut split_sends = 0;
     for (k, m) in sends.iter().enumerate() {
         if m.port == 1
-            && let (Some(at1), Some(at0)) = (carried[k], port0_at.get(&m.tick))
+            && let (Some(at1), Some((sent0, at0))) = (carried[k], port0.get(&m.tick))
         {
+            if m.at.saturating_duration_since(*sent0) > Duration::from_micros(500) {
+                split_sends += 1;
+                continue;
+            }
             port1_lag_us.push(at1.saturating_duration_since(*at0).as_secs_f64() * 1e6);
         }
     }
     let one_packet_ticks = port1_lag_us.iter().filter(|lag| **lag == 0.0).count();
-    // Spells with no request on the wire for more than three mean spacings of requests.
-    let spacing = Duration::from_secs_f64(run_time / requests.len().max(1) as f64);
+    // Spells with no request on the wire for more than three poll periods (the mean spacing of
+    // position-and-current reads: 5 ms at 4 servos and 50 Hz).
+    let spacing = Duration::from_secs_f64(run_time / polls.max(1) as f64);
     let spells: Vec<(Instant, Instant)> = requests
         .windows(2)
         .map(|w| (w[0].0, w[1].0))
@@ -821,6 +844,13 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
         .iter()
         .filter(|(a, b)| !beside_stall(&stalls, *a, *b))
         .count();
+    // Bunched: half the gaps between requests are under a third of the poll period.
+    let mut gaps: Vec<Duration> = requests
+        .windows(2)
+        .map(|w| w[1].0.saturating_duration_since(w[0].0))
+        .collect();
+    gaps.sort();
+    let bunched = gaps.get(gaps.len() / 2).is_some_and(|g| *g < spacing / 3);
     let _ = Command::new("kill")
         .args(["-TERM", &pid.to_string()])
         .status();
@@ -844,11 +874,11 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
             .iter()
             .map(|(due, woke)| woke.duration_since(*due).as_secs_f64() * 1e6)
             .fold(0.0, f64::max),
-        idle_spells: spells.len(),
-        idle_unstalled,
+        idle_spells: (!bunched).then_some((spells.len(), idle_unstalled)),
         both_port_ticks: port1_lag_us.len(),
         one_packet_ticks,
         port1_lag_us,
+        split_sends,
         settled_us,
         behind,
         polls_hz: polls as f64 / run_time / case.servos as f64,
@@ -1182,20 +1212,23 @@ fn main() {
         all_unstalled.sort_by(f64::total_cmp);
         o.port1_lag_us.sort_by(f64::total_cmp);
         println!(
-            "    machine stalls {} (max {} µs, steal {} ms/s); idle spells {} ({} beside no stall); beside no stall: p0 p99 {}, all p99 {} µs{}",
+            "    machine stalls {} (max {} µs, steal {} ms/s); idle spells {}; beside no stall: p0 p99 {}, all p99 {} µs{}",
             o.stalls,
             us(o.stall_max_us),
             o.steal_ms_per_s
                 .map_or("n/m".to_string(), |s| format!("{s:.1}")),
-            o.idle_spells,
-            o.idle_unstalled,
+            o.idle_spells.map_or(
+                "n/a (reads bunched after each tick)".to_string(),
+                |(n, u)| { format!("{n} ({u} beside no stall)") }
+            ),
             us(percentile(&o.unstalled_us[0], 0.99)),
             us(percentile(&all_unstalled, 0.99)),
             if o.both_port_ticks > 0 {
                 format!(
-                    "; one packet in {:.1}% of {} two-port ticks, port 1 behind port 0 p50/p99 {}/{} µs",
+                    "; one packet in {:.1}% of {} two-port ticks ({} more sent >0.5 ms apart), port 1 behind port 0 p50/p99 {}/{} µs",
                     o.one_packet_ticks as f64 * 100.0 / o.both_port_ticks as f64,
                     o.both_port_ticks,
+                    o.split_sends,
                     us(percentile(&o.port1_lag_us, 0.5)),
                     us(percentile(&o.port1_lag_us, 0.99)),
                 )
@@ -1212,7 +1245,7 @@ fn main() {
         "latencies in µs, from the autopilot's send to the first byte of the long packet; n/m: not measured (/proc unreadable)"
     );
     println!(
-        "machine stalls: wake-ups of the bench's probe threads (one per CPU, sleeping 5 ms at a time like the bus thread) more than 0.5 ms late; idle spells: more than three mean request spacings with no request on the wire; beside no stall: goals whose wait no machine stall overlapped"
+        "machine stalls: wake-ups of the bench's probe threads (one per CPU, sleeping 5 ms at a time like the bus thread) more than 0.5 ms late; idle spells: more than three poll periods with no request on the wire; two-port ticks: both ports' messages sent within 0.5 ms; beside no stall: goals whose wait no machine stall overlapped"
     );
     println!(
         "behind: measured messages sent while a request and its reply held the wire; polls: position-and-current reads per servo per second; s1 ok: servo 1's good replies per second; settled: port 0 p50/p90 of the steps 1 s or more after a disturbance began or ended"
