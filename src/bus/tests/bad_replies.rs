@@ -125,14 +125,20 @@ fn a_reply_from_another_servo_is_not_taken_for_the_one_awaited() {
     assert_eq!(rig.m.counters().unexpected_replies, 1);
 }
 
-#[test]
-fn a_reply_garbled_in_its_header_frees_the_bus_a_few_byte_times_after_its_end() {
+/// Servo 1's identity read on the wire, and the bytes of its reply with the header spoiled
+/// (every byte is skipped as garbage).
+fn identity_read_answered_with_a_garbled_header() -> (Rig, Vec<u8>) {
     let mut rig = Rig::with_ids(&[1]);
     let t0 = rig.t0;
     let _ = rig.m.poll_transmit(t0).unwrap();
     let mut reply = registers_reply(1, 30, false);
-    // The header spoiled: every byte of the reply is skipped as garbage.
     reply[0] ^= 0x0F;
+    (rig, reply)
+}
+
+#[test]
+fn a_reply_garbled_in_its_header_frees_the_bus_a_few_byte_times_after_its_end() {
+    let (mut rig, reply) = identity_read_answered_with_a_garbled_header();
     let complete_at = rig.m.reply_complete_at().unwrap();
     let allowance_ends = rig.m.poll_timeout().unwrap();
     rig.m.handle_input(&reply, complete_at);
@@ -148,11 +154,7 @@ fn a_reply_garbled_in_its_header_frees_the_bus_a_few_byte_times_after_its_end() 
 
 #[test]
 fn noise_before_a_reply_garbled_in_its_header_never_frees_the_bus_under_its_tail() {
-    let mut rig = Rig::with_ids(&[1]);
-    let t0 = rig.t0;
-    let _ = rig.m.poll_transmit(t0).unwrap();
-    let mut reply = registers_reply(1, 30, false);
-    reply[0] ^= 0x0F;
+    let (mut rig, reply) = identity_read_answered_with_a_garbled_header();
     let complete_at = rig.m.reply_complete_at().unwrap();
     // A byte of noise as the transceivers turn round, then the reply but its last byte: as
     // many bytes as a reply, read when the last one is still on the wire.
