@@ -2,7 +2,9 @@
 //! `NOTIFY_SOCKET` (a real Unix datagram socket of the test's, as systemd gives one) and a
 //! `WATCHDOG_USEC`. It says READY=1 once its buses have tried their ports, then pings the
 //! watchdog while every bus thread turns, a bus whose port is missing included; a bus thread
-//! that hangs (the test-only fault switch) stops the pings, and the log names the bus.
+//! that hangs (the test-only fault switch) stops the pings, and the log names the bus. Where
+//! real-time scheduling is granted, the MAVLink loop's thread and the bus threads run at
+//! SCHED_FIFO, and no other thread does.
 
 mod bus_support;
 mod tempdir;
@@ -384,9 +386,17 @@ fn the_mavlink_loop_and_the_bus_threads_run_real_time_and_nothing_else_does() {
     let (buses, others): (Vec<_>, Vec<_>) = rest.iter().partition(|(n, ..)| n.starts_with("bus "));
     assert_eq!(buses.len(), 2, "{threads:?}");
     if granted {
-        assert_eq!((main.1, main.2), (fifo, 9), "the MAVLink loop: {threads:?}");
+        let (loop_priority, bus_priority) = (
+            lj9da_bridge::runtime::LOOP_PRIORITY as u32,
+            lj9da_bridge::bus::driver::REALTIME_PRIORITY as u32,
+        );
+        assert_eq!(
+            (main.1, main.2),
+            (fifo, loop_priority),
+            "the MAVLink loop: {threads:?}"
+        );
         for bus in &buses {
-            assert_eq!((bus.1, bus.2), (fifo, 10), "{threads:?}");
+            assert_eq!((bus.1, bus.2), (fifo, bus_priority), "{threads:?}");
         }
         for other in &others {
             assert_eq!(other.1, normal, "{other:?} of {threads:?}");
