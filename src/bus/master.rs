@@ -85,8 +85,6 @@ struct Pending {
     skipped_before: u64,
     /// When the request has left the wire: no byte read before is the servo's.
     request_ends: Instant,
-    /// The deadline first given: the reply allowance's end.
-    allowance: Instant,
     /// Bytes read since the request left the wire that were not its echo, garbage included.
     heard: u64,
 }
@@ -365,6 +363,7 @@ impl BusMaster {
     /// not the reply, made up the count. A clean reply still ends the request at once.
     fn hold_for_garbled_bytes(&mut self, now: Instant) {
         let quiet = self.cfg.wire_time(QUIET_AFTER_GARBLED_BYTES) + self.reply_lateness;
+        let turnaround = self.cfg.turnaround;
         // A reply begun in the decoder is left its allowance: noise before it made the count.
         let reply_begun = self.decoder.buffered() > 0;
         if let Some(p) = self.pending.as_mut()
@@ -373,7 +372,8 @@ impl BusMaster {
             && p.heard >= p.expected.wire_len() as u64
         {
             p.garbled = true;
-            p.deadline = p.allowance.min(now + quiet);
+            // The allowance's end, as the request was given it (both move with a late write).
+            p.deadline = (p.complete_at + turnaround).min(now + quiet);
         }
     }
 
@@ -496,7 +496,6 @@ impl BusMaster {
         if let Some(p) = self.pending.as_mut() {
             p.complete_at += shift;
             p.deadline += shift;
-            p.allowance += shift;
             p.request_ends += shift;
         }
     }
@@ -811,7 +810,6 @@ impl BusMaster {
         if expected.wire_len() > 0 {
             let complete_at =
                 self.wire_free_at + return_delay + self.cfg.wire_time(expected.wire_len());
-            let deadline = complete_at + self.cfg.turnaround;
             self.pending = Some(Pending {
                 index: i,
                 tx,
@@ -819,11 +817,10 @@ impl BusMaster {
                 complete_at,
                 looked: false,
                 garbled: false,
-                deadline,
+                deadline: complete_at + self.cfg.turnaround,
                 received_before: self.counters.bytes_received,
                 skipped_before: self.skipped_bytes(),
                 request_ends: self.wire_free_at,
-                allowance: deadline,
                 heard: 0,
             });
         }
