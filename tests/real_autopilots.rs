@@ -1,0 +1,633 @@
+//! The bridge against real autopilots: ArduPlane and PX4 SITL (their own flight code, built from
+//! their sources), configured only as `docs/autopilot.md` tells a user — the parameter lines and
+//! mapping blocks are read from the page — with the project's simulated servos on pseudo-terminals
+//! and pymavlink as the ground station, connected to the autopilot, not to the bridge.
+//!
+//! Each test needs its autopilot (see `autopilots/mod.rs` for where they are looked for) and
+//! uses its fixed ports (ArduPlane: TCP 5760, UDP 14560; PX4: UDP 14540, 14550), so the tests
+//! are ignored by `cargo test --workspace` and run one at a time by `.ci/autopilots`:
+//!
+//! ```sh
+//! cargo test --test real_autopilots -- --ignored --test-threads=1
+//! ```
+
+mod autopilots;
+mod common;
+
+use autopilots::{Autopilot, GroundStation, Tap, Tapped, block_after, fresh_dir};
+use common::{Chain, ChainOptions};
+use lj9da_bridge::config::Config;
+use lj9da_bridge::config::servo::ServoConfig;
+use lj9da_sim::BusEvent;
+use lj9da_sim::protocol::host_packet::HostPacket;
+use serde_json::json;
+use sha2::{Digest, Sha256};
+use std::sync::mpsc::Receiver;
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+const PAGE: &str = "docs/autopilot.md";
+const SECS: fn(u64) -> Duration = Duration::from_secs;
+
+/// What the bridge logs, kept for the checks of its lines (installed once per process).
+fn bridge_log() -> Arc<Mutex<Vec<u8>>> {
+    static LOG: OnceLock<Arc<Mutex<Vec<u8>>>> = OnceLock::new();
+    LOG.get_or_init(|| {
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let writer = log.clone();
+        tracing_subscriber::fmt()
+            .with_ansi(false)
+            .with_writer(move || LogWriter(writer.clone()))
+            .init();
+        log
+    })
+    .clone()
+}
+
+struct LogWriter(Arc<Mutex<Vec<u8>>>);
+
+impl std::io::Write for LogWriter {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(buf);
+        std::io::stderr().write_all(buf)?;
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// The log's lines that contain `needle`.
+fn log_lines_with(log: &Mutex<Vec<u8>>, needle: &str) -> Vec<String> {
+    String::from_utf8_lossy(&log.lock().unwrap())
+        .lines()
+        .filter(|l| l.contains(needle))
+        .map(str::to_string)
+        .collect()
+}
+
+/// The position, in 0.01 mm, that a servo's PWM law, reverse and travel give for `us`: the
+/// mapping file's rule, worked out here on its own. `None`: no output (the servo holds).
+fn expected_goal(servo: &ServoConfig, us: u16) -> Option<i16> {
+    let (min, trim, max) = (servo.pwm.min_us, servo.pwm.trim_us, servo.pwm.max_us);
+    if us == 0 || us == u16::MAX || us < min || us > max {
+        return None;
+    }
+    let offset = f64::from(us) - f64::from(trim);
+    let span = if offset >= 0.0 {
+        f64::from(max - trim)
+    } else {
+        f64::from(trim - min)
+    };
+    let mut centi = (offset * 2500.0 / span).round();
+    if servo.reverse {
+        centi = -centi;
+    }
+    let (lo, hi) = (servo.travel.minus().0, servo.travel.plus().0);
+    Some((centi as i16).clamp(lo, hi))
+}
+
+/// The output of `servo` in one SERVO_OUTPUT_RAW (`None` if the message is another port's).
+fn output_of(servo: &ServoConfig, t: &Tapped) -> Option<u16> {
+    let (port, index) = servo.servo_output_raw_slot();
+    if t.outputs.port != port {
+        return None;
+    }
+    let o = &t.outputs;
+    Some(
+        [
+            o.servo1_raw,
+            o.servo2_raw,
+            o.servo3_raw,
+            o.servo4_raw,
+            o.servo5_raw,
+            o.servo6_raw,
+            o.servo7_raw,
+            o.servo8_raw,
+            o.servo9_raw,
+            o.servo10_raw,
+            o.servo11_raw,
+            o.servo12_raw,
+            o.servo13_raw,
+            o.servo14_raw,
+            o.servo15_raw,
+            o.servo16_raw,
+        ][index],
+    )
+}
+
+/// The goals of every long packet the bus has seen since `events` was taken, with when its
+/// first byte came.
+fn long_packets(events: &Receiver<BusEvent>) -> Vec<(Instant, Vec<(u8, i16)>)> {
+    events
+        .try_iter()
+        .filter_map(|e| match e {
+            BusEvent::Packet(p) if matches!(p.packet, HostPacket::Long(_)) => {
+                Some((p.first_byte_at, p.packet.goal_positions()))
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+/// How far back an output may be from the long packet it explains: the latest one passed to
+/// the bridge before the packet's first byte, or one of the two before it (still in the
+/// bridge's socket or loop when the next came in).
+const LAG_ALLOWED: usize = 2;
+
+/// Check that every long packet's goals are the mapping of one SERVO_OUTPUT_RAW the autopilot
+/// sent just before it (to ±1 count), and that each servo in `moving` took at least
+/// `distinct` different goals. Returns how many packets were checked.
+fn goals_follow_outputs(
+    cfg: &Config,
+    packets: &[(Instant, Vec<(u8, i16)>)],
+    outputs: &[Tapped],
+    moving: &[(&str, usize)],
+) -> usize {
+    let servo = |id: u8| cfg.servos.iter().find(|s| s.id.get() == id).unwrap();
+    let mut unexplained = Vec::new();
+    let mut lags = [0usize; LAG_ALLOWED + 1];
+    let mut checked = 0;
+    for (at, goals) in packets {
+        let before: Vec<&Tapped> = outputs.iter().filter(|t| t.at < *at).collect();
+        if before.is_empty() {
+            continue;
+        }
+        checked += 1;
+        let explains = |t: &Tapped| {
+            goals.iter().all(|(id, goal)| {
+                output_of(servo(*id), t)
+                    .and_then(|us| expected_goal(servo(*id), us))
+                    .is_some_and(|e| (i32::from(e) - i32::from(*goal)).abs() <= 1)
+            })
+        };
+        match before
+            .iter()
+            .rev()
+            .take(LAG_ALLOWED + 1)
+            .position(|t| explains(t))
+        {
+            Some(lag) => lags[lag] += 1,
+            None => unexplained.push((goals.clone(), before.last().map(|t| t.outputs.clone()))),
+        }
+    }
+    assert!(checked > 0, "no long packet after the first output");
+    assert!(
+        unexplained.is_empty(),
+        "{} of {checked} long packets match none of the {} outputs sent before them (lags {lags:?}); \
+         the first: {:?}",
+        unexplained.len(),
+        LAG_ALLOWED + 1,
+        &unexplained[..unexplained.len().min(3)]
+    );
+    for (name, distinct) in moving {
+        let s = cfg.servos.iter().find(|s| s.name == *name).unwrap();
+        let mut goals: Vec<i16> = packets
+            .iter()
+            .flat_map(|(_, g)| {
+                g.iter()
+                    .filter(|(id, _)| *id == s.id.get())
+                    .map(|(_, g)| *g)
+            })
+            .collect();
+        goals.sort_unstable();
+        goals.dedup();
+        assert!(
+            goals.len() >= *distinct,
+            "{name} took {} different goals, fewer than the {distinct} its outputs should give: \
+             {goals:?}",
+            goals.len()
+        );
+    }
+    eprintln!("{checked} long packets explained; lag behind the latest output: {lags:?}");
+    checked
+}
+
+/// The rate of SERVO_OUTPUT_RAW port 0 passed on over `window`, from `since`.
+fn tapped_rate(tap: &Tap, since: Instant, window: Duration) -> f64 {
+    let n = tap
+        .outputs_since(since)
+        .iter()
+        .filter(|t| t.outputs.port == 0 && t.at < since + window)
+        .count();
+    n as f64 / window.as_secs_f64()
+}
+
+/// Move the surfaces through the ground station for `seconds`: RC override of roll, pitch and
+/// yaw at 20 Hz (the autopilot in MANUAL passes them to its outputs).
+async fn sweep_sticks(gcs: &mut GroundStation, seconds: f64) {
+    let start = Instant::now();
+    while start.elapsed().as_secs_f64() < seconds {
+        let t = start.elapsed().as_secs_f64();
+        let wave =
+            |hz: f64, amp: f64| (1500.0 + amp * (std::f64::consts::TAU * hz * t).sin()) as u16;
+        gcs.send(
+            "RC_CHANNELS_OVERRIDE",
+            json!({
+                "target_system": 1, "target_component": 1,
+                "chan1_raw": wave(0.5, 450.0), "chan2_raw": wave(0.35, 400.0),
+                "chan3_raw": 0, "chan4_raw": wave(0.7, 350.0),
+                "chan5_raw": 0, "chan6_raw": 0, "chan7_raw": 0, "chan8_raw": 0,
+            }),
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// COMMAND_LONG to the autopilot (1, 1); waits for its COMMAND_ACK and returns the result.
+fn command(gcs: &mut GroundStation, command: u32, params: [f32; 7]) -> u64 {
+    let mark = gcs.mark();
+    gcs.send(
+        "COMMAND_LONG",
+        json!({
+            "target_system": 1, "target_component": 1, "command": command, "confirmation": 0,
+            "param1": params[0], "param2": params[1], "param3": params[2], "param4": params[3],
+            "param5": params[4], "param6": params[5], "param7": params[6],
+        }),
+    );
+    let ack = gcs.wait_for_after(mark, &format!("COMMAND_ACK of {command}"), SECS(10), |m| {
+        m["msg"] == "COMMAND_ACK" && m["command"] == command && autopilots::from(m, 1, 1)
+    });
+    ack["result"].as_u64().unwrap()
+}
+
+const MAV_CMD_DO_SET_MODE: u32 = 176;
+const MAV_CMD_DO_SET_SERVO: u32 = 183;
+const MAV_TYPE_SERVO: u64 = 33;
+
+/// The mapping `docs/autopilot.md` sets ArduPlane SITL up with: the shipped example and the
+/// page's servo on an output with no function.
+fn arduplane_mapping(extra_mavlink: &str) -> String {
+    let example = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/mappings/ardupilot-plane.toml"
+    ))
+    .unwrap();
+    let example = example.replacen("[mavlink]\n", &format!("[mavlink]\n{extra_mavlink}\n"), 1);
+    format!(
+        "{example}\n{}",
+        block_after(PAGE, "<!-- sitl: the servo moved by DO_SET_SERVO -->")
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+#[ignore = "needs ArduPlane SITL and its fixed ports: run by .ci/autopilots"]
+async fn arduplane_set_up_as_the_page_says() {
+    let log = bridge_log();
+    let (binary, defaults) = autopilots::arduplane().expect(
+        "no ArduPlane SITL: set LJ9DA_ARDUPLANE to an arduplane program (plane.parm beside it)",
+    );
+    let dir = fresh_dir("arduplane");
+    let parm = dir.join("bridge.parm");
+    std::fs::write(
+        &parm,
+        block_after(PAGE, "<!-- sitl: ArduPlane parameters -->"),
+    )
+    .unwrap();
+    let defaults = format!("{},{}", defaults.display(), parm.display());
+
+    let tap = Tap::start(14560);
+    let ap = Autopilot::arduplane(&binary, &dir, &defaults, 14560);
+    tap.wait_for_autopilot(SECS(60), || ap.console());
+    let mapping_file = dir.join("bridge.toml");
+    let text = arduplane_mapping("");
+    std::fs::write(&mapping_file, &text).unwrap();
+    let cfg = Config::parse(&text, "the page's mapping").expect("the page's mapping is valid");
+    let chain = Chain::start_opts(
+        &text,
+        ChainOptions {
+            mapping_file: Some(mapping_file.clone()),
+            ..ChainOptions::default()
+        },
+    )
+    .await;
+    tap.to_bridge(chain.autopilot_port);
+    let mut gcs = GroundStation::connect("tcp:127.0.0.1:5760");
+
+    // The rate the page promises: 40 Hz on stock Plane, by the bridge's meter and by the tap.
+    chain
+        .wait_view("outputs at 40 Hz", SECS(30), |v| {
+            v.outputs_received_hz
+                .iter()
+                .any(|(port, hz)| *port == 0 && *hz >= 36.0)
+        })
+        .await;
+    let since = Instant::now();
+    tokio::time::sleep(SECS(3)).await;
+    let tapped = tapped_rate(&tap, since, SECS(3));
+    let metered = chain.view.borrow().outputs_received_hz.clone();
+    assert!(
+        (36.0..=44.0).contains(&tapped),
+        "SERVO_OUTPUT_RAW at {tapped:.1} Hz, not the page's 40 Hz"
+    );
+    assert!(
+        metered
+            .iter()
+            .any(|(p, hz)| *p == 0 && (36.0..=44.0).contains(hz)),
+        "the bridge's meter: {metered:?}, not the page's 40 Hz"
+    );
+
+    // The surfaces move: MANUAL, the sticks swept by RC override, then output 6 (no function)
+    // set by DO_SET_SERVO.
+    assert_eq!(
+        command(
+            &mut gcs,
+            MAV_CMD_DO_SET_MODE,
+            [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        ),
+        0
+    );
+    let events = chain.sims[0].handle().subscribe();
+    let sweep_from = Instant::now();
+    sweep_sticks(&mut gcs, 4.0).await;
+    for us in [1800.0, 1250.0] {
+        assert_eq!(
+            command(
+                &mut gcs,
+                MAV_CMD_DO_SET_SERVO,
+                [6.0, us, 0.0, 0.0, 0.0, 0.0, 0.0]
+            ),
+            0,
+            "DO_SET_SERVO 6 {us}"
+        );
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+    let packets = long_packets(&events);
+    goals_follow_outputs(
+        &cfg,
+        &packets,
+        &tap.outputs_since(sweep_from - SECS(1)),
+        &[
+            ("aileron_left", 20),
+            ("aileron_right", 20),
+            ("elevator", 20),
+            ("rudder", 20),
+            ("release", 2),
+        ],
+    );
+    let release = cfg.servos.iter().find(|s| s.name == "release").unwrap();
+    let last_release = packets.iter().rev().find_map(|(_, g)| {
+        g.iter()
+            .find(|(id, _)| *id == release.id.get())
+            .map(|g| g.1)
+    });
+    assert_eq!(
+        last_release,
+        expected_goal(release, 1250),
+        "DO_SET_SERVO's goal"
+    );
+
+    // The ground station on the autopilot sees the bridge: its HEARTBEAT, NAMED_VALUE_FLOAT and
+    // a servo fault's STATUSTEXT, routed by the autopilot.
+    let hb = gcs.wait_for("the bridge's HEARTBEAT", SECS(10), |m| {
+        m["msg"] == "HEARTBEAT" && autopilots::from(m, 1, 140)
+    });
+    assert_eq!(hb["type"].as_u64(), Some(MAV_TYPE_SERVO), "{hb}");
+    gcs.wait_for("the bridge's NAMED_VALUE_FLOAT", SECS(10), |m| {
+        m["msg"] == "NAMED_VALUE_FLOAT" && autopilots::from(m, 1, 140)
+    });
+    let mark = gcs.mark();
+    assert!(chain.sims[0].handle().overheat(4));
+    gcs.wait_for_after(mark, "the rudder's overheat STATUSTEXT", SECS(10), |m| {
+        m["msg"] == "STATUSTEXT"
+            && autopilots::from(m, 1, 140)
+            && m["text"]
+                .as_str()
+                .is_some_and(|t| t.contains("rudder: overheat"))
+    });
+
+    // The bridge's parameters, listed and set through the autopilot; the change is kept in the
+    // mapping file. Asking beyond ArduPilot's cap gives one line naming the parameter.
+    let mark = gcs.mark();
+    gcs.send(
+        "PARAM_REQUEST_LIST",
+        json!({"target_system": 1, "target_component": 140}),
+    );
+    let first = gcs.wait_for_after(mark, "the bridge's PARAM_VALUE", SECS(10), |m| {
+        m["msg"] == "PARAM_VALUE" && autopilots::from(m, 1, 140)
+    });
+    let count = first["param_count"].as_u64().unwrap() as usize;
+    let deadline = Instant::now() + SECS(10);
+    loop {
+        let mut indexes: Vec<u64> = gcs
+            .heard_after(mark)
+            .iter()
+            .filter(|m| m["msg"] == "PARAM_VALUE" && autopilots::from(m, 1, 140))
+            .map(|m| m["param_index"].as_u64().unwrap())
+            .collect();
+        indexes.sort_unstable();
+        indexes.dedup();
+        if indexes.len() == count {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{} of the bridge's {count} parameters came through the autopilot",
+            indexes.len()
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let mark = gcs.mark();
+    gcs.send(
+        "PARAM_SET",
+        json!({"target_system": 1, "target_component": 140, "param_id": "BRG_OUT_HZ",
+               "param_value": 50.0, "param_type": 9}),
+    );
+    gcs.wait_for_after(mark, "BRG_OUT_HZ = 50 confirmed", SECS(10), |m| {
+        m["msg"] == "PARAM_VALUE"
+            && autopilots::from(m, 1, 140)
+            && m["param_id"] == "BRG_OUT_HZ"
+            && m["param_value"] == 50.0
+    });
+    let deadline = Instant::now() + SECS(10);
+    while !std::fs::read_to_string(&mapping_file)
+        .unwrap()
+        .contains("output_rate_hz = 50")
+    {
+        assert!(
+            Instant::now() < deadline,
+            "BRG_OUT_HZ = 50 is not in the mapping file"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let deadline = Instant::now() + SECS(10);
+    while log_lines_with(&log, "SCHED_LOOP_RATE").is_empty() {
+        assert!(
+            Instant::now() < deadline,
+            "no line names SCHED_LOOP_RATE after asking 50 Hz"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    tokio::time::sleep(SECS(3)).await;
+    let advice = log_lines_with(&log, "SCHED_LOOP_RATE");
+    assert_eq!(advice.len(), 1, "one line, not {advice:?}");
+    assert!(
+        advice[0].contains("denied SERVO_OUTPUT_RAW at 50 Hz"),
+        "{advice:?}"
+    );
+    let since = Instant::now();
+    tokio::time::sleep(SECS(2)).await;
+    let tapped = tapped_rate(&tap, since, SECS(2));
+    assert!(
+        (36.0..=44.0).contains(&tapped),
+        "after the denial: {tapped:.1} Hz"
+    );
+    chain.stop().await;
+
+    // Signing as the page says: the key given to the autopilot with SETUP_SIGNING (what
+    // MAVProxy's `signing setup` sends), the same passphrase in the mapping.
+    let key = Sha256::digest(PASSPHRASE.as_bytes());
+    let key_hex: String = key.iter().map(|b| format!("{b:02x}")).collect();
+    let since_2015_10us = (std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_micros()
+        / 10
+        - 1_420_070_400 * 100_000) as u64;
+    gcs.command(json!({
+        "send": "SETUP_SIGNING",
+        "fields": {"target_system": 1, "target_component": 1, "secret_key": key_hex,
+                   "initial_timestamp": since_2015_10us},
+        "hex": ["secret_key"],
+    }));
+    gcs.command(json!({ "sign": key_hex }));
+    let text = arduplane_mapping(&format!("signing_passphrase = \"{PASSPHRASE}\""));
+    std::fs::write(&mapping_file, &text).unwrap();
+    let chain = Chain::start_opts(
+        &text,
+        ChainOptions {
+            mapping_file: Some(mapping_file.clone()),
+            ..ChainOptions::default()
+        },
+    )
+    .await;
+    let signed_from = tap.datagrams();
+    tap.to_bridge(chain.autopilot_port);
+    let mark = gcs.mark();
+    gcs.wait_for_after(mark, "the signing bridge's HEARTBEAT", SECS(15), |m| {
+        m["msg"] == "HEARTBEAT" && autopilots::from(m, 1, 140)
+    });
+    let events = chain.sims[0].handle().subscribe();
+    let sweep_from = Instant::now();
+    sweep_sticks(&mut gcs, 2.0).await;
+    goals_follow_outputs(
+        &cfg,
+        &long_packets(&events),
+        &tap.outputs_since(sweep_from - SECS(1)),
+        &[("aileron_left", 10), ("elevator", 10)],
+    );
+    let ((ap_all, ap_signed), (br_all, br_signed)) = tap.datagrams();
+    let (ap_all, ap_signed) = (ap_all - signed_from.0.0, ap_signed - signed_from.0.1);
+    let (br_all, br_signed) = (br_all - signed_from.1.0, br_signed - signed_from.1.1);
+    assert!(
+        ap_all > 0 && ap_signed == ap_all && br_all > 0 && br_signed == br_all,
+        "signed datagrams: autopilot {ap_signed} of {ap_all}, bridge {br_signed} of {br_all}"
+    );
+    // An unsigned command to the bridge is refused: counted as unsigned, its value not taken.
+    let before = chain.view.borrow().signing_drops[0].unsigned;
+    unsigned_param_set(chain.autopilot_port, "BRG_FS_MS", 900.0);
+    chain
+        .wait_view("the unsigned PARAM_SET counted", SECS(5), |v| {
+            v.signing_drops[0].unsigned > before
+        })
+        .await;
+    let mark = gcs.mark();
+    gcs.send(
+        "PARAM_REQUEST_READ",
+        json!({"target_system": 1, "target_component": 140, "param_id": "BRG_FS_MS",
+               "param_index": -1}),
+    );
+    let value = gcs.wait_for_after(mark, "BRG_FS_MS read", SECS(10), |m| {
+        m["msg"] == "PARAM_VALUE" && autopilots::from(m, 1, 140) && m["param_id"] == "BRG_FS_MS"
+    });
+    assert_eq!(
+        value["param_value"], 500.0,
+        "the unsigned PARAM_SET was taken: {value}"
+    );
+    drop(gcs);
+
+    // The autopilot killed: the failsafe within failsafe_timeout_ms + 100 ms of its last output,
+    // said once; started again, its outputs are followed without restarting the bridge.
+    ap.kill();
+    let last_output = tap.outputs().last().unwrap().at;
+    chain
+        .gcs
+        .wait_for("the failsafe's STATUSTEXT", SECS(5), |heard| {
+            heard.iter().any(|(_, _, m)| failsafe_text(m))
+        })
+        .await;
+    let announced = chain
+        .gcs
+        .all()
+        .into_iter()
+        .find(|(_, _, m)| failsafe_text(m))
+        .unwrap()
+        .0;
+    let after = announced.duration_since(last_output);
+    assert!(
+        after
+            <= Duration::from_millis(cfg.mavlink.failsafe_timeout_ms.into())
+                + Duration::from_millis(100),
+        "failsafe announced {after:?} after the autopilot's last output"
+    );
+    eprintln!("failsafe announced {after:?} after the autopilot's last output");
+    let ap = Autopilot::arduplane(&binary, &dir, &defaults, 14560);
+    let mut gcs = GroundStation::connect("tcp:127.0.0.1:5760");
+    chain
+        .wait_view("the failsafe left", SECS(60), |v| !v.failsafe)
+        .await;
+    let texts = chain.gcs.all();
+    let said = texts.iter().filter(|(_, _, m)| failsafe_text(m)).count();
+    assert_eq!(said, 1, "the failsafe was said {said} times");
+    assert_eq!(
+        command(
+            &mut gcs,
+            MAV_CMD_DO_SET_MODE,
+            [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        ),
+        0
+    );
+    let events = chain.sims[0].handle().subscribe();
+    let sweep_from = Instant::now();
+    sweep_sticks(&mut gcs, 2.0).await;
+    goals_follow_outputs(
+        &cfg,
+        &long_packets(&events),
+        &tap.outputs_since(sweep_from - SECS(1)),
+        &[("aileron_left", 10), ("elevator", 10)],
+    );
+    drop(gcs);
+    chain.stop().await;
+    drop(ap);
+}
+
+const PASSPHRASE: &str = "lj9da bridge sitl";
+
+fn failsafe_text(m: &mavlink::dialects::common::MavMessage) -> bool {
+    matches!(m, mavlink::dialects::common::MavMessage::STATUSTEXT(s)
+        if s.text.to_str().is_ok_and(|t| t.contains("failsafe: no outputs")))
+}
+
+/// An unsigned PARAM_SET of the bridge's `name`, sent to the bridge's autopilot link from a
+/// socket of its own (what a stranger on the link could send).
+fn unsigned_param_set(bridge_port: u16, name: &str, value: f32) {
+    use mavlink::dialects::common::{MavMessage, MavParamType, PARAM_SET_DATA};
+    let mut id = [0u8; 16];
+    id[..name.len()].copy_from_slice(name.as_bytes());
+    let msg = MavMessage::PARAM_SET(PARAM_SET_DATA {
+        param_value: value,
+        target_system: 1,
+        target_component: 140,
+        param_id: id.into(),
+        param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
+    });
+    let header = mavlink::MavHeader {
+        system_id: 255,
+        component_id: 190,
+        sequence: 0,
+    };
+    let mut frame = Vec::new();
+    mavlink::write_v2_msg(&mut frame, header, &msg).unwrap();
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    socket.send_to(&frame, ("127.0.0.1", bridge_port)).unwrap();
+}
