@@ -1,6 +1,16 @@
 //! End-to-end benchmark: a MAVLink sender on UDP → the bridge process (`lj9da-bridge run`) →
 //! simulated LJ9DA41s on pseudo-terminals at 115 200 bit/s.
 //!
+//! Each case also runs, right before or after the bridge (the order swapped from case to case,
+//! so that both see the same minute of the machine), with a peer in the bridge's place: the
+//! naive bridge, `../shared/peers/naive_bridge.py` beside the repository (`E2E_NAIVE=path`
+//! names another), a pymavlink loop that writes every servo's goal on each SERVO_OUTPUT_RAW and
+//! then polls one servo with a blocking read, as a normal process. It reads the same mapping
+//! file and meets the same servos, sender and measures. Its Python is `$LJ9DA_PYTHON`, else the
+//! tests' virtual environment with pymavlink under the target directory (made on first use,
+//! from PyPI). Where the script or such a Python is missing, one line says so and the bridge
+//! runs alone. `E2E_PEERS=bridge` (or `naive`) runs one of them.
+//!
 //! Cases at 115 200 bit/s: 4 and 8 servos on port 0 at 50 Hz and 400 Hz, every message a new
 //! goal; and 4 servos on two ports (channels 1–3 in SERVO_OUTPUT_RAW port 0, channel 17 in port 1, sent back to
 //! back as ArduPilot does) at 50 Hz, each quiet and beside two CPU hogs (`E2E_HOGS=n` changes
@@ -49,6 +59,15 @@
 //!   the reply allowance while the bridge timed the first out) and STATUSTEXTs of severity WARNING or
 //!   worse heard by the ground station (none is true of healthy simulated servos).
 //!
+//! The naive peer's lines carry its name after the case's, with `n/a` for what it has no figure
+//! of: it sends its telemetry and STATUSTEXTs to the autopilot's address only (no ground
+//! station hears them), and runs one thread. It has no failsafe; the bench measures none (the
+//! `gap` case's silence is shorter than the bridge's failsafe timeout). After the two runs of
+//! a case a table sets side by side the bridge's and the peer's port 0 p50 (in `steps`, `gap`
+//! and `rate`: a step after the outputs held still), port 1's goals p50, all goals' p50 and
+//! p99, the goals on the wire and the whole process's CPU, with the ratio peer/bridge (above
+//! 1: the peer's figure is higher).
+//!
 //! The sender stands for the autopilot, another computer: it runs at a real-time priority
 //! above the bridge's where granted, sleeps between sends and spins only for the last 0.5 ms.
 //!
@@ -61,6 +80,9 @@
 //! `E2E_GCS_HZ` sets the ground station's NAMED_VALUE_FLOAT rate, `[telemetry] rate_hz`,
 //! default 20 as in every earlier run of this bench; the bridge's own default is 1).
 
+#[path = "../tests/common/python.rs"]
+mod python;
+
 use lj9da_bridge::config::Config;
 use lj9da_bridge::mavlink::outputs::servo_output_raw;
 use lj9da_sim::protocol::host_packet::ShortForm;
@@ -68,6 +90,7 @@ use lj9da_sim::{BusEvent, Fault, HostPacket, SimBus, SimConfig};
 use mavlink::dialects::common::*;
 use mavlink::{MavConnection, MavHeader};
 use std::io::Write;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
@@ -78,6 +101,96 @@ const SENDER_PRIORITY: i32 = lj9da_bridge::bus::driver::REALTIME_PRIORITY + 10;
 /// The sender spins for the last this-much before each send (see `run_case`): more than a
 /// sleeping thread's usual lateness on an idle virtual machine.
 const SEND_SPIN: Duration = Duration::from_micros(500);
+
+/// The longest a process may take from its start to its first goal on the wire.
+const WARM_UP_LIMIT: Duration = Duration::from_secs(60);
+
+/// The process that runs between the autopilot and the simulated servos.
+enum Peer {
+    /// `lj9da-bridge run` (`$E2E_BRIDGE`, else this build's).
+    Bridge,
+    /// `naive_bridge.py run` (`../shared/peers/`: a pymavlink loop that writes every servo's
+    /// goal on each SERVO_OUTPUT_RAW, then polls one servo with a blocking read), run by a
+    /// Python with pymavlink.
+    Naive { python: PathBuf, script: PathBuf },
+}
+
+impl Peer {
+    fn name(&self) -> &'static str {
+        match self {
+            Peer::Bridge => "bridge",
+            Peer::Naive { .. } => "naive",
+        }
+    }
+}
+
+/// The peers named by `$E2E_PEERS` (`bridge`, `naive`; default both). Where the naive peer's
+/// script or a Python that runs it is missing, one line says so and the bridge runs alone.
+fn peers() -> Vec<Peer> {
+    let wanted = std::env::var("E2E_PEERS").unwrap_or_else(|_| "bridge,naive".into());
+    let mut peers = Vec::new();
+    for name in wanted.split(',').map(str::trim).filter(|n| !n.is_empty()) {
+        match name {
+            "bridge" => peers.push(Peer::Bridge),
+            "naive" => match naive() {
+                Ok(peer) => peers.push(peer),
+                Err(why) => println!("naive peer not run: {why}"),
+            },
+            other => panic!("E2E_PEERS: unknown peer {other:?} (bridge, naive)"),
+        }
+    }
+    if peers.is_empty() {
+        peers.push(Peer::Bridge);
+    }
+    peers
+}
+
+/// The naive peer: its script (`$E2E_NAIVE`, else `../shared/peers/naive_bridge.py` beside the
+/// repository) and a Python 3.11+ with pymavlink (`$LJ9DA_PYTHON`, else the tests' virtual
+/// environment under the target directory, made on first use).
+fn naive() -> Result<Peer, String> {
+    let script = std::env::var_os("E2E_NAIVE").map_or_else(
+        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/peers/naive_bridge.py"),
+        PathBuf::from,
+    );
+    let Ok(script) = script.canonicalize() else {
+        return Err(format!(
+            "no {} (E2E_NAIVE=path names another); the bridge alone",
+            script.display()
+        ));
+    };
+    let python = std::panic::catch_unwind(python::python)
+        .map_err(|_| "no Python with pymavlink (the panic above says why); the bridge alone")?;
+    let runs = Command::new(&python)
+        .args(["-c", "import tomllib, pymavlink.mavutil"])
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !runs {
+        return Err(format!(
+            "{} lacks tomllib (Python 3.11+) or pymavlink; the bridge alone",
+            python.display()
+        ));
+    }
+    Ok(Peer::Naive { python, script })
+}
+
+/// Ask the process to end (SIGTERM: the bridge holds its servos, the naive peer ends its loop)
+/// and wait; killed after 5 s.
+fn stop(child: &mut Child) {
+    let _ = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status();
+    let asked = Instant::now();
+    while asked.elapsed() < Duration::from_secs(5) {
+        if let Ok(Some(_)) = child.try_wait() {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+}
 
 #[derive(Clone, Copy, PartialEq)]
 enum Jitter {
@@ -495,7 +608,7 @@ fn pwm(s: usize, i: usize, marked: usize) -> u16 {
     }
 }
 
-fn run_case(case: &Case, seconds: f64) -> Outcome {
+fn run_case(case: &Case, seconds: f64, peer: &Peer) -> Outcome {
     let sim = SimBus::spawn_pty(SimConfig {
         ids: (1..=case.servos as u8).collect(),
         baud: case.baud,
@@ -520,14 +633,25 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
     let markers = [config.servos[0].clone(), config.servos[marked - 1].clone()];
     let goal_of =
         |port: usize, us: u16| markers[port].map_pwm(us).expect("bench PWM is in range").0;
-    let mut bridge: Child = Command::new(bridge_exe())
+    let mut command = match peer {
+        Peer::Bridge => {
+            let mut c = Command::new(bridge_exe());
+            c.env("RUST_LOG", "warn");
+            c
+        }
+        Peer::Naive { python, script } => {
+            let mut c = Command::new(python);
+            c.arg(script);
+            c
+        }
+    };
+    let mut bridge: Child = command
         .args(["run", "--config"])
         .arg(&cfg_path)
-        .env("RUST_LOG", "warn")
         .stdout(Stdio::null())
         .stderr(Stdio::inherit())
         .spawn()
-        .expect("bridge process");
+        .unwrap_or_else(|e| panic!("{} process: {e}", peer.name()));
     let pid = bridge.id();
 
     let gcs = mavlink::connect::<MavMessage>(&format!("udpin:127.0.0.1:{gcs_port}")).unwrap();
@@ -567,14 +691,33 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
         autopilot: MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
         ..Default::default()
     });
-    // Warm up: let every servo come online and take its first (soft-start) goal.
+    // Warm up: let every servo come online and take its first (soft-start) goal. At least 3 s,
+    // and 1 s after servo 1's first goal reached the wire: the naive peer's Python takes a
+    // second or more to start on a busy machine, and the run's sends must find it listening.
     let warm = Instant::now();
-    while warm.elapsed() < Duration::from_secs(3) {
+    let mut first_goal: Option<Instant> = None;
+    while warm.elapsed() < Duration::from_secs(3)
+        || first_goal.is_none_or(|at| at.elapsed() < Duration::from_secs(1))
+    {
+        assert!(
+            warm.elapsed() < WARM_UP_LIMIT,
+            "the {} process put no goal on the wire in {WARM_UP_LIMIT:?}",
+            peer.name()
+        );
         let _ = ap.send(&header, &heartbeat);
         for port in 0..case.ports {
             let _ = ap.send(&header, &outputs(case.servos, marked, port, 0));
         }
         std::thread::sleep(Duration::from_millis(50));
+        while first_goal.is_none()
+            && let Ok(e) = events.try_recv()
+        {
+            if let BusEvent::Packet(p) = e
+                && p.packet.goal_positions().iter().any(|(id, _)| *id == 1)
+            {
+                first_goal = Some(Instant::now());
+            }
+        }
     }
     if case.scenario == Scenario::Garbled {
         sim.handle()
@@ -851,10 +994,7 @@ fn run_case(case: &Case, seconds: f64) -> Outcome {
         .collect();
     gaps.sort();
     let bunched = gaps.get(gaps.len() / 2).is_some_and(|g| *g < spacing / 3);
-    let _ = Command::new("kill")
-        .args(["-TERM", &pid.to_string()])
-        .status();
-    let _ = bridge.wait();
+    stop(&mut bridge);
     let (telemetry, since_first, alarms) = gcs_thread.join().unwrap();
     let telemetry_hz = since_first
         .map(|d| telemetry as f64 / d.as_secs_f64())
@@ -1019,6 +1159,207 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[i]
 }
 
+/// A latency in whole µs, `-` where there was none.
+fn us(v: f64) -> String {
+    if v.is_nan() {
+        "-".to_string()
+    } else {
+        format!("{v:.0}")
+    }
+}
+
+/// What [`compare`] sets side by side, per peer.
+struct Figures {
+    p0_p50: f64,
+    p1_p50: f64,
+    all_p50: f64,
+    all_p99: f64,
+    on_wire_percent: f64,
+    cpu_percent: Option<f64>,
+}
+
+/// Print a run's two lines (the bridge's as they always were; the naive peer's with its name
+/// after the case, and `n/a` where it has no such figure: it sends the ground station nothing,
+/// and has one thread) and return its figures for [`compare`].
+fn report(case: &Case, peer: &Peer, mut o: Outcome) -> Figures {
+    let bridge = matches!(peer, Peer::Bridge);
+    let na = || "n/a".to_string();
+    for l in &mut o.latencies_us {
+        l.sort_by(f64::total_cmp);
+    }
+    o.settled_us.sort_by(f64::total_cmp);
+    let mut all: Vec<f64> = o.latencies_us.concat();
+    all.sort_by(f64::total_cmp);
+    let [p0, p1] = &o.latencies_us;
+    let settled = if o.settled_us.is_empty() {
+        "-".to_string()
+    } else {
+        format!(
+            "{}/{}",
+            us(percentile(&o.settled_us, 0.5)),
+            us(percentile(&o.settled_us, 0.9))
+        )
+    };
+    let label = if bridge {
+        format!("{} {}", case.name(), case.scenario.name())
+    } else {
+        format!("{} {} {}", case.name(), case.scenario.name(), peer.name())
+    };
+    let on_wire_percent = o.on_wire as f64 * 100.0 / o.sent.max(1) as f64;
+    println!(
+        "{:<16} {:>4} {:>5} {:>6.1}% {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>6.1}% {:>7.1} {:>6.1} {:>6} {:>6} {:>6} {:>16} {:>9} {:>11} {:>6}",
+        label,
+        case.hogs,
+        o.sent,
+        on_wire_percent,
+        o.superseded,
+        o.lost,
+        us(percentile(p0, 0.5)),
+        us(percentile(p0, 0.9)),
+        us(percentile(p0, 0.99)),
+        us(p0.last().copied().unwrap_or(f64::NAN)),
+        us(percentile(p1, 0.5)),
+        us(percentile(&all, 0.99)),
+        settled,
+        o.behind as f64 * 100.0 / o.sent.max(1) as f64,
+        o.polls_hz,
+        o.servo1_ok_hz,
+        if bridge {
+            format!("{:.1}", o.telemetry_hz)
+        } else {
+            na()
+        },
+        o.cpu_percent
+            .map_or("n/m".to_string(), |c| format!("{c:.2}")),
+        o.peak_rss_kib
+            .map_or("n/m".to_string(), |r| format!("{:.1}", r as f64 / 1024.0)),
+        match o.threads {
+            _ if !bridge => na(),
+            Some(t) => format!("{:.2}/{:.2}/{:.2}", t[0].0, t[1].0, t[2].0),
+            None => "n/m".to_string(),
+        },
+        match o.threads {
+            _ if !bridge => na(),
+            Some(t) => format!("{:.0}/{:.0}", t[0].1, t[1].1),
+            None => "n/m".to_string(),
+        },
+        if o.collisions_sim_starved > 0 {
+            format!("{} ({} sim)", o.collisions, o.collisions_sim_starved)
+        } else {
+            o.collisions.to_string()
+        },
+        if bridge {
+            o.alarms.len().to_string()
+        } else {
+            na()
+        },
+    );
+    for l in &mut o.unstalled_us {
+        l.sort_by(f64::total_cmp);
+    }
+    let mut all_unstalled: Vec<f64> = o.unstalled_us.concat();
+    all_unstalled.sort_by(f64::total_cmp);
+    o.port1_lag_us.sort_by(f64::total_cmp);
+    println!(
+        "    machine stalls {} (max {} µs, steal {} ms/s); idle spells {}; beside no stall: p0 p99 {}, all p99 {} µs{}",
+        o.stalls,
+        us(o.stall_max_us),
+        o.steal_ms_per_s
+            .map_or("n/m".to_string(), |s| format!("{s:.1}")),
+        o.idle_spells.map_or(
+            "n/a (reads bunched after each tick)".to_string(),
+            |(n, u)| { format!("{n} ({u} beside no stall)") }
+        ),
+        us(percentile(&o.unstalled_us[0], 0.99)),
+        us(percentile(&all_unstalled, 0.99)),
+        if o.both_port_ticks > 0 {
+            format!(
+                "; one packet in {:.1}% of {} two-port ticks ({} more sent >0.5 ms apart), port 1 behind port 0 p50/p99 {}/{} µs",
+                o.one_packet_ticks as f64 * 100.0 / o.both_port_ticks as f64,
+                o.both_port_ticks,
+                o.split_sends,
+                us(percentile(&o.port1_lag_us, 0.5)),
+                us(percentile(&o.port1_lag_us, 0.99)),
+            )
+        } else {
+            String::new()
+        },
+    );
+    for a in &o.alarms {
+        println!("    alarm heard: {a}");
+    }
+    Figures {
+        p0_p50: percentile(p0, 0.5),
+        p1_p50: percentile(p1, 0.5),
+        all_p50: percentile(&all, 0.5),
+        all_p99: percentile(&all, 0.99),
+        on_wire_percent,
+        cpu_percent: o.cpu_percent,
+    }
+}
+
+/// Where a case ran with the bridge and another peer: their figures side by side, with the
+/// ratio peer/bridge (above 1: the peer's is higher).
+fn compare(case: &Case, runs: &[(&Peer, Figures)]) {
+    let Some((_, bridge)) = runs.iter().find(|(p, _)| matches!(p, Peer::Bridge)) else {
+        return;
+    };
+    // In `steps`, `gap` and `rate` every measured message is a step after the outputs held.
+    let p0_label = if case.scenario.step_every().is_some() {
+        "step after hold p50 (port 0)"
+    } else {
+        "port 0 p50"
+    };
+    for (peer, other) in runs.iter().filter(|(p, _)| !matches!(p, Peer::Bridge)) {
+        let name = peer.name();
+        println!(
+            "    {:<30} {:>9} {:>9} {:>12}",
+            format!("{} {}", case.name(), case.scenario.name()),
+            "bridge",
+            name,
+            format!("{name}/bridge")
+        );
+        let ratio = |b: f64, o: f64| {
+            if b.is_nan() || o.is_nan() || b == 0.0 {
+                "-".to_string()
+            } else {
+                format!("{:.2}", o / b)
+            }
+        };
+        let latency = |label: &str, b: f64, o: f64| {
+            println!(
+                "    {:<30} {:>9} {:>9} {:>12}",
+                format!("{label}, µs"),
+                us(b),
+                us(o),
+                ratio(b, o)
+            );
+        };
+        latency(p0_label, bridge.p0_p50, other.p0_p50);
+        latency("port 1's goals p50", bridge.p1_p50, other.p1_p50);
+        latency("all goals p50", bridge.all_p50, other.all_p50);
+        latency("all goals p99", bridge.all_p99, other.all_p99);
+        println!(
+            "    {:<30} {:>8.1}% {:>8.1}% {:>12}",
+            "goals on the wire",
+            bridge.on_wire_percent,
+            other.on_wire_percent,
+            ratio(bridge.on_wire_percent, other.on_wire_percent)
+        );
+        let cpu = |c: Option<f64>| c.map_or("n/m".to_string(), |c| format!("{c:.2}"));
+        println!(
+            "    {:<30} {:>9} {:>9} {:>12}",
+            "CPU, whole process, %",
+            cpu(bridge.cpu_percent),
+            cpu(other.cpu_percent),
+            bridge
+                .cpu_percent
+                .zip(other.cpu_percent)
+                .map_or("-".to_string(), |(b, o)| ratio(b, o))
+        );
+    }
+}
+
 fn main() {
     let seconds: f64 = std::env::var("E2E_SECONDS")
         .ok()
@@ -1047,6 +1388,16 @@ fn main() {
         "machine: {cpu}, {cores} cores; {seconds} s per case (at least 8–10 s for steps, gap, rate)"
     );
     println!("bridge: {}", bridge_exe().to_string_lossy());
+    let peers = peers();
+    for peer in &peers {
+        if let Peer::Naive { python, script } = peer {
+            println!(
+                "naive peer: {} {} (each case runs with it and the bridge, back to back)",
+                python.display(),
+                script.display()
+            );
+        }
+    }
     println!(
         "{:<16} {:>4} {:>5} {:>7} {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>7} {:>7} {:>6} {:>6} {:>6} {:>6} {:>16} {:>9} {:>11} {:>6}",
         "case",
@@ -1128,13 +1479,9 @@ fn main() {
             }
         }
     }
-    let us = |v: f64| {
-        if v.is_nan() {
-            "-".to_string()
-        } else {
-            format!("{v:.0}")
-        }
-    };
+    // Each case runs once per peer, back to back, the order swapped from case to case: both
+    // see the same minute of the machine.
+    let mut selected = 0;
     for case in cases {
         // `E2E_CASES=4x50,4x50x2pj` runs only those cases (e.g. while profiling one of them).
         if let Ok(only) = std::env::var("E2E_CASES")
@@ -1142,97 +1489,19 @@ fn main() {
         {
             continue;
         }
-        let hogs = Hogs::start(case.hogs);
-        let mut o = run_case(&case, seconds.max(case.scenario.min_seconds()));
-        drop(hogs);
-        for l in &mut o.latencies_us {
-            l.sort_by(f64::total_cmp);
+        let mut order: Vec<&Peer> = peers.iter().collect();
+        if selected % 2 == 1 {
+            order.reverse();
         }
-        o.settled_us.sort_by(f64::total_cmp);
-        let mut all: Vec<f64> = o.latencies_us.concat();
-        all.sort_by(f64::total_cmp);
-        let [p0, p1] = &o.latencies_us;
-        let settled = if o.settled_us.is_empty() {
-            "-".to_string()
-        } else {
-            format!(
-                "{}/{}",
-                us(percentile(&o.settled_us, 0.5)),
-                us(percentile(&o.settled_us, 0.9))
-            )
-        };
-        println!(
-            "{:<16} {:>4} {:>5} {:>6.1}% {:>5} {:>4} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} {:>7} {:>6.1}% {:>7.1} {:>6.1} {:>6.1} {:>6} {:>6} {:>16} {:>9} {:>11} {:>6}",
-            format!("{} {}", case.name(), case.scenario.name()),
-            case.hogs,
-            o.sent,
-            o.on_wire as f64 * 100.0 / o.sent.max(1) as f64,
-            o.superseded,
-            o.lost,
-            us(percentile(p0, 0.5)),
-            us(percentile(p0, 0.9)),
-            us(percentile(p0, 0.99)),
-            us(p0.last().copied().unwrap_or(f64::NAN)),
-            us(percentile(p1, 0.5)),
-            us(percentile(&all, 0.99)),
-            settled,
-            o.behind as f64 * 100.0 / o.sent.max(1) as f64,
-            o.polls_hz,
-            o.servo1_ok_hz,
-            o.telemetry_hz,
-            o.cpu_percent
-                .map_or("n/m".to_string(), |c| format!("{c:.2}")),
-            o.peak_rss_kib
-                .map_or("n/m".to_string(), |r| format!("{:.1}", r as f64 / 1024.0)),
-            o.threads.map_or("n/m".to_string(), |t| format!(
-                "{:.2}/{:.2}/{:.2}",
-                t[0].0, t[1].0, t[2].0
-            )),
-            o.threads.map_or("n/m".to_string(), |t| format!(
-                "{:.0}/{:.0}",
-                t[0].1, t[1].1
-            )),
-            if o.collisions_sim_starved > 0 {
-                format!("{} ({} sim)", o.collisions, o.collisions_sim_starved)
-            } else {
-                o.collisions.to_string()
-            },
-            o.alarms.len(),
-        );
-        for l in &mut o.unstalled_us {
-            l.sort_by(f64::total_cmp);
+        selected += 1;
+        let mut figures = Vec::new();
+        for peer in order {
+            let hogs = Hogs::start(case.hogs);
+            let o = run_case(&case, seconds.max(case.scenario.min_seconds()), peer);
+            drop(hogs);
+            figures.push((peer, report(&case, peer, o)));
         }
-        let mut all_unstalled: Vec<f64> = o.unstalled_us.concat();
-        all_unstalled.sort_by(f64::total_cmp);
-        o.port1_lag_us.sort_by(f64::total_cmp);
-        println!(
-            "    machine stalls {} (max {} µs, steal {} ms/s); idle spells {}; beside no stall: p0 p99 {}, all p99 {} µs{}",
-            o.stalls,
-            us(o.stall_max_us),
-            o.steal_ms_per_s
-                .map_or("n/m".to_string(), |s| format!("{s:.1}")),
-            o.idle_spells.map_or(
-                "n/a (reads bunched after each tick)".to_string(),
-                |(n, u)| { format!("{n} ({u} beside no stall)") }
-            ),
-            us(percentile(&o.unstalled_us[0], 0.99)),
-            us(percentile(&all_unstalled, 0.99)),
-            if o.both_port_ticks > 0 {
-                format!(
-                    "; one packet in {:.1}% of {} two-port ticks ({} more sent >0.5 ms apart), port 1 behind port 0 p50/p99 {}/{} µs",
-                    o.one_packet_ticks as f64 * 100.0 / o.both_port_ticks as f64,
-                    o.both_port_ticks,
-                    o.split_sends,
-                    us(percentile(&o.port1_lag_us, 0.5)),
-                    us(percentile(&o.port1_lag_us, 0.99)),
-                )
-            } else {
-                String::new()
-            },
-        );
-        for a in &o.alarms {
-            println!("    alarm heard: {a}");
-        }
+        compare(&case, &figures);
         let _ = std::io::stdout().flush();
     }
     println!(
