@@ -339,7 +339,9 @@ fn a_bridge_that_hears_no_autopilot_says_so_and_where_it_listens() {
     let line = log_line(&bridge.heard, note).unwrap();
     assert!(line.contains("udpin:127.0.0.1:"), "{line}");
     assert!(
-        line.contains("SERIALn_PROTOCOL") && line.contains("MAV_n_CONFIG"),
+        line.contains("SERIALn_PROTOCOL")
+            && line.contains("MAV_n_CONFIG")
+            && line.contains("SER_<port>_PROTO on PX4 main"),
         "{line}"
     );
 }

@@ -719,7 +719,8 @@ impl Bridge {
         tracing::warn!(
             "no outputs heard from the autopilot for {} s on {}: the buses run meanwhile; \
              check that the autopilot sends MAVLink there (ArduPilot: SERIALn_PROTOCOL = 2 on that \
-             port; PX4: MAV_n_CONFIG), and that its system and component IDs are the mapping file's",
+             port; PX4: MAV_n_CONFIG, or SER_<port>_PROTO on PX4 main), and that its system and \
+             component IDs are the mapping file's",
             now.duration_since(since).as_secs(),
             self.cfg.mavlink.connection
         );
