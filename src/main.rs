@@ -16,7 +16,7 @@ use std::process::ExitCode;
     name = "lj9da-bridge",
     version,
     about = "Bridge between MAVLink autopilots (PX4, ArduPilot) and Futaba LJ9DA41 RS485 linear servos",
-    after_help = "Examples:\n  lj9da-bridge sitl                          # the whole chain in simulation, no hardware\n  lj9da-bridge ports                         # which serial port is which\n  lj9da-bridge check --config mappings/ardupilot-plane.toml\n  lj9da-bridge run --config /etc/lj9da-bridge/bridge.toml\n\nLogs: set RUST_LOG (e.g. RUST_LOG=lj9da_bridge=debug)."
+    after_help = "Examples:\n  lj9da-bridge sitl                          # the whole chain in simulation, no hardware\n  lj9da-bridge ports                         # which serial port is which\n  lj9da-bridge scan --port /dev/ttyUSB0      # commissioning: every servo that answers (bridge stopped)\n  lj9da-bridge check --config mappings/ardupilot-plane.toml\n  lj9da-bridge run --config /etc/lj9da-bridge/bridge.toml\n\nLogs: set RUST_LOG (e.g. RUST_LOG=lj9da_bridge=debug)."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -59,7 +59,10 @@ enum Command {
         #[arg(long)]
         plain: bool,
     },
-    /// Look at a flight record: summary, plots, CSV.
+    /// Look at flight records: summary, plots, CSV, and wear across flights (trend).
+    #[command(
+        after_help = "Examples:\n  lj9da-bridge record summary records/20260302T143000Z.lj9rec\n  lj9da-bridge record plot records/20260302T143000Z.lj9rec --out plots/\n  lj9da-bridge record csv records/20260302T143000Z.lj9rec > flight.csv\n  lj9da-bridge record trend records/                 # wear across flights (--json, --html wear.html)"
+    )]
     Record {
         #[command(subcommand)]
         cmd: RecordCommand,

@@ -28,6 +28,18 @@ fn text(bytes: &[u8]) -> String {
 }
 
 #[test]
+fn the_help_shows_a_commissioning_command_among_its_examples() {
+    let out = bridge(&["--help"], None);
+    assert!(out.status.success());
+    let help = text(&out.stdout);
+    let examples = &help[help.find("Examples:").expect("an Examples section")..];
+    assert!(
+        examples.contains("lj9da-bridge scan --port /dev/ttyUSB0"),
+        "{help}"
+    );
+}
+
+#[test]
 fn a_limit_beyond_25_mm_exits_2_with_the_reason_and_nothing_reaches_the_bus() {
     let bus = sim(&[1]);
     let events = bus.handle().subscribe();

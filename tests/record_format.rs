@@ -644,6 +644,21 @@ fn record_cli(args: &[&OsStr]) -> String {
 }
 
 #[test]
+fn record_help_names_every_subcommand_in_its_summary_and_examples() {
+    let help = record_cli(&["--help".as_ref()]);
+    let summary = help.lines().next().unwrap_or_default();
+    for word in ["summary", "plots", "CSV", "trend"] {
+        assert!(summary.contains(word), "{summary}");
+    }
+    for command in ["summary", "plot", "csv", "trend"] {
+        assert!(
+            help.contains(&format!("lj9da-bridge record {command} ")),
+            "no example of {command}:\n{help}"
+        );
+    }
+}
+
+#[test]
 fn record_summary_csv_and_plot_take_the_file_of_every_format() {
     let names: Vec<String> = sitl_servos().into_iter().map(|s| s.name).collect();
     for fixture in &FIXTURES {
