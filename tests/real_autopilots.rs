@@ -171,7 +171,11 @@ fn goals_follow_outputs(
             None => unexplained.push((goals.clone(), before.last().map(|t| t.outputs.clone()))),
         }
     }
-    assert!(checked > 0, "no long packet after the first output");
+    assert!(
+        checked > 0,
+        "no long packet after the first output; the last output: {:?}",
+        outputs.last().map(|t| &t.outputs)
+    );
     assert!(
         unexplained.is_empty(),
         "{} of {checked} long packets match none of the {} outputs sent before them (lags {lags:?}); \
@@ -630,4 +634,154 @@ fn unsigned_param_set(bridge_port: u16, name: &str, value: f32) {
     mavlink::write_v2_msg(&mut frame, header, &msg).unwrap();
     let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     socket.send_to(&frame, ("127.0.0.1", bridge_port)).unwrap();
+}
+
+const MAV_CMD_DO_SET_ACTUATOR: u32 = 187;
+const MAV_CMD_COMPONENT_ARM_DISARM: u32 = 400;
+
+/// PX4's parameters from the page, as `(NAME, value)`.
+fn px4_parameters() -> Vec<(String, String)> {
+    block_after(PAGE, "<!-- sitl: PX4 parameters -->")
+        .lines()
+        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
+        .map(|l| {
+            let (name, value) = l.split_once(' ').expect("NAME VALUE");
+            (name.to_string(), value.trim().to_string())
+        })
+        .collect()
+}
+
+/// PX4's sticks from the ground station (MANUAL_CONTROL at 20 Hz) for `seconds`: centred, or
+/// swept in roll, pitch and yaw; throttle down.
+async fn manual_sticks(gcs: &mut GroundStation, seconds: f64, sweep: bool) {
+    let start = Instant::now();
+    while start.elapsed().as_secs_f64() < seconds {
+        let t = start.elapsed().as_secs_f64();
+        let wave = |hz: f64| {
+            if sweep {
+                (800.0 * (std::f64::consts::TAU * hz * t).sin()) as i64
+            } else {
+                0
+            }
+        };
+        gcs.send(
+            "MANUAL_CONTROL",
+            json!({"target": 1, "x": wave(0.35), "y": wave(0.5), "z": 0, "r": wave(0.7),
+                   "buttons": 0}),
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+#[ignore = "needs PX4 SITL and its fixed ports: run by .ci/autopilots"]
+async fn px4_airplane_set_up_as_the_page_says() {
+    let root = autopilots::px4()
+        .expect("no PX4 SITL: set LJ9DA_PX4 to a folder with bin/px4 and etc/ (a SITL build)");
+    let dir = fresh_dir("px4");
+    let params = px4_parameters();
+    let params: Vec<(&str, &str)> = params
+        .iter()
+        .map(|(n, v)| (n.as_str(), v.as_str()))
+        .collect();
+    let tap = Tap::start(14540);
+    let mut gcs = GroundStation::connect("udpin:127.0.0.1:14550");
+    let px4 = Autopilot::px4(&root, "sihsim_airplane", &dir, &params);
+    tap.wait_for_autopilot(SECS(30), || px4.console());
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/mappings/px4-vtol.toml"
+    ))
+    .unwrap();
+    let cfg = Config::parse(&text, "mappings/px4-vtol.toml").unwrap();
+    let chain = Chain::start_opts(&text, ChainOptions::default()).await;
+    tap.to_bridge(chain.autopilot_port);
+
+    // PX4's onboard 10 Hz stream raised to the mapping's rate, by the bridge's own meter.
+    let asked = cfg.mavlink.output_rate_hz;
+    chain
+        .wait_view("SERVO_OUTPUT_RAW raised", SECS(30), |v| {
+            v.outputs_received_hz
+                .iter()
+                .any(|(port, hz)| *port == 0 && *hz >= 0.9 * asked)
+        })
+        .await;
+    let since = Instant::now();
+    tokio::time::sleep(SECS(3)).await;
+    let metered = chain.view.borrow().outputs_received_hz.clone();
+    let tapped = tapped_rate(&tap, since, SECS(3));
+    assert!(
+        metered.iter().any(|(p, hz)| *p == 0 && *hz >= 0.9 * asked)
+            && tapped >= 0.9 * f64::from(asked),
+        "asked {asked} Hz: the bridge's meter {metered:?}, the tap {tapped:.1} Hz"
+    );
+
+    // Armed in Manual, the sticks move the surfaces, DO_SET_ACTUATOR the gear door; every
+    // goal follows PX4's outputs.
+    manual_sticks(&mut gcs, 1.0, false).await;
+    assert_eq!(
+        command(
+            &mut gcs,
+            MAV_CMD_DO_SET_MODE,
+            [1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        ),
+        0
+    );
+    assert_eq!(
+        command(
+            &mut gcs,
+            MAV_CMD_COMPONENT_ARM_DISARM,
+            [1.0, 21196.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        ),
+        0,
+        "arming"
+    );
+    let events = chain.sims[0].handle().subscribe();
+    let sweep_from = Instant::now();
+    manual_sticks(&mut gcs, 4.0, true).await;
+    for value in [0.5f32, -0.4] {
+        assert_eq!(
+            command(
+                &mut gcs,
+                MAV_CMD_DO_SET_ACTUATOR,
+                [value, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+            ),
+            0,
+            "DO_SET_ACTUATOR {value}"
+        );
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+    goals_follow_outputs(
+        &cfg,
+        &long_packets(&events),
+        &tap.outputs_since(sweep_from - SECS(1)),
+        &[
+            ("aileron_left", 10),
+            ("aileron_right", 10),
+            ("elevator", 10),
+            ("rudder", 10),
+            ("gear_door", 2),
+        ],
+    );
+
+    // A ground station on PX4's own link sees the bridge's health, forwarded by PX4.
+    let hb = gcs.wait_for("the bridge's HEARTBEAT", SECS(10), |m| {
+        m["msg"] == "HEARTBEAT" && autopilots::from(m, 1, 140)
+    });
+    assert_eq!(hb["type"].as_u64(), Some(MAV_TYPE_SERVO), "{hb}");
+    gcs.wait_for("the bridge's NAMED_VALUE_FLOAT", SECS(10), |m| {
+        m["msg"] == "NAMED_VALUE_FLOAT" && autopilots::from(m, 1, 140)
+    });
+    let mark = gcs.mark();
+    assert!(chain.sims[0].handle().overheat(4));
+    gcs.wait_for_after(mark, "the rudder's overheat STATUSTEXT", SECS(10), |m| {
+        m["msg"] == "STATUSTEXT"
+            && autopilots::from(m, 1, 140)
+            && m["text"]
+                .as_str()
+                .is_some_and(|t| t.contains("rudder: overheat"))
+    });
+    drop(gcs);
+    chain.stop().await;
+    drop(px4);
 }

@@ -368,7 +368,7 @@ pub type GcsMessage = serde_json::Value;
 
 /// A pymavlink ground station on `address` (`tests/autopilots/gcs.py`).
 pub struct GroundStation {
-    child: Child,
+    child: Mutex<Child>,
     stdin: ChildStdin,
     heard: Arc<Mutex<Vec<GcsMessage>>>,
 }
@@ -397,7 +397,7 @@ impl GroundStation {
             }
         });
         let gcs = GroundStation {
-            child,
+            child: Mutex::new(child),
             stdin,
             heard,
         };
@@ -457,6 +457,9 @@ impl GroundStation {
             if let Some(m) = self.heard.lock().unwrap()[mark..].iter().find(|m| pred(m)) {
                 return m.clone();
             }
+            if let Ok(Some(status)) = self.child.lock().unwrap().try_wait() {
+                panic!("the ground station ended ({status}) before it heard {what}");
+            }
             assert!(
                 Instant::now() < deadline,
                 "the ground station did not hear {what} in {timeout:?}; it heard {} messages, the \
@@ -471,8 +474,9 @@ impl GroundStation {
 
 impl Drop for GroundStation {
     fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        let child = self.child.get_mut().unwrap();
+        let _ = child.kill();
+        let _ = child.wait();
     }
 }
 
