@@ -183,8 +183,8 @@ fn mission_planner_names(cfg: &Config) -> Option<String> {
          the first {MISSION_PLANNER_NAMED_VALUES} to arrive only (fewer when the autopilot sends \
          names of its own)."
     );
-    let esc = "QGroundControl's ESC indicator (esc = true, ESC_INFO/ESC_STATUS) still shows \
-               every servo's current, temperature and voltage.";
+    let esc = "QGroundControl's ESC indicator (5.1 and later; esc = true, ESC_INFO/ESC_STATUS) \
+               still shows every servo's current, temperature and voltage.";
     let fit = MISSION_PLANNER_NAMED_VALUES / servos.max(1);
     if fit >= 1 {
         return Some(format!(
