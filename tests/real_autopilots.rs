@@ -18,6 +18,7 @@ use autopilots::{Autopilot, GroundStation, Tap, Tapped, block_after, fresh_dir};
 use common::{Chain, ChainOptions};
 use lj9da_bridge::config::Config;
 use lj9da_bridge::config::servo::ServoConfig;
+use lj9da_bridge::mavlink::rate;
 use lj9da_sim::BusEvent;
 use lj9da_sim::protocol::host_packet::HostPacket;
 use serde_json::json;
@@ -607,11 +608,21 @@ async fn arduplane_set_up_as_the_page_says() {
     chain
         .wait_view("the failsafe left", SECS(60), |v| !v.failsafe)
         .await;
+    let back = Instant::now();
     let texts = chain.gcs.all();
     let said = texts.iter().filter(|(_, _, m)| failsafe_text(m)).count();
     assert_eq!(said, 1, "the failsafe was said {said} times");
     arduplane_manual(&mut gcs);
     sticks_followed(&mut gcs, &chain, &tap, &cfg).await;
+    // The outage and the autopilot's return at its default rate are not a slow stream: nothing
+    // said in the slow-stream rule's span (and a window more) from the return.
+    let span = rate::WINDOW * (rate::LOW_WINDOWS + 1);
+    tokio::time::sleep((back + span).saturating_duration_since(Instant::now())).await;
+    let slow = log_lines_with(&log, "below the");
+    assert!(
+        slow.is_empty(),
+        "a slow stream said across the restart: {slow:?}"
+    );
     drop(gcs);
     chain.stop().await;
     drop(ap);

@@ -351,9 +351,13 @@ impl BridgeCore {
 
     fn handle_outputs(&mut self, port: u8, values: &ChannelValues, now: Instant) {
         self.last_output_at = Some(now);
+        let stream_back = self.stream_failsafe;
+        if stream_back {
+            // The rate is measured from the stream's return (see `RateMeter::restart`).
+            self.rate.restart(now);
+        }
         let fastest = self.rate.count(port, self.requested_rate_hz, now);
         self.judge_rate(fastest);
-        let stream_back = self.stream_failsafe;
         if stream_back {
             self.stream_failsafe = false;
             self.event(BridgeEvent::FailsafeLeft, now);
@@ -832,6 +836,8 @@ impl BridgeCore {
         }
         if now.duration_since(last) >= timeout {
             self.stream_failsafe = true;
+            // An outage is the failsafe's, not a slow stream: its window is not judged.
+            self.rate.restart(now);
             // The autopilot may have restarted and forgotten the rate: ask again until it runs.
             self.stream_ok = false;
             self.next_stream_request = now;

@@ -149,6 +149,16 @@ impl RateMeter {
             .collect()
     }
 
+    /// Start measuring afresh at `now`, as after an outage of the whole stream (its failsafe
+    /// entered, or the stream back): the window under way and the count of slow windows are
+    /// dropped, so that neither the silence nor an autopilot that restarted and is still at its
+    /// default rate until it hears the request again is taken for a slow stream.
+    pub fn restart(&mut self, now: Instant) {
+        self.start = now;
+        self.counts = [0; PORTS];
+        self.slow_windows = [0; PORTS];
+    }
+
     /// When the current window closes.
     pub fn deadline(&self) -> Instant {
         self.start + WINDOW
@@ -250,6 +260,41 @@ mod tests {
         assert!(m.take_warnings().is_empty());
         assert_eq!(m.received_hz(), vec![(0, 0.0)]);
         assert_eq!(m.take_news().len(), 1, "only the first measurement is news");
+    }
+
+    /// An autopilot killed and started again: its stream stops mid-window, stays silent,
+    /// and comes back at its default rate before the request raises it. Measured afresh at the
+    /// failsafe and at the return, as the core does, that is no slow stream.
+    #[test]
+    fn an_outage_and_a_slow_return_are_not_a_slow_stream() {
+        let t0 = Instant::now();
+        let mut m = RateMeter::new(Source::ServoOutputRaw, [1], t0);
+        let t = feed(&mut m, 0, 40.0, 40.0, t0, 3.0);
+        // Killed at 3 s; its failsafe at 3.5 s.
+        m.restart(t + Duration::from_millis(500));
+        m.roll(40.0, t + Duration::from_millis(1500));
+        // Back at 5.5 s: half a second at 40 Hz, 2.5 s at its default 4 Hz, then 40 Hz.
+        let back = t + Duration::from_millis(2500);
+        m.restart(back);
+        let t = feed(&mut m, 0, 40.0, 40.0, back, 0.5);
+        let t = feed(&mut m, 0, 4.0, 40.0, t, 2.5);
+        feed(&mut m, 0, 40.0, 40.0, t, 6.0);
+        assert!(m.take_warnings().is_empty());
+    }
+
+    /// The same stream measured through the outage (no restart) is taken for a slow one: the
+    /// rule above is what keeps it quiet.
+    #[test]
+    fn without_a_restart_the_same_outage_reads_as_a_slow_stream() {
+        let t0 = Instant::now();
+        let mut m = RateMeter::new(Source::ServoOutputRaw, [1], t0);
+        let t = feed(&mut m, 0, 40.0, 40.0, t0, 3.0);
+        let back = t + Duration::from_millis(2500);
+        m.roll(40.0, t + Duration::from_millis(1500));
+        let t = feed(&mut m, 0, 40.0, 40.0, back, 0.5);
+        let t = feed(&mut m, 0, 4.0, 40.0, t, 2.5);
+        feed(&mut m, 0, 40.0, 40.0, t, 6.0);
+        assert_eq!(m.take_warnings().len(), 1);
     }
 
     #[test]
