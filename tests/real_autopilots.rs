@@ -696,6 +696,48 @@ async fn manual_sticks(gcs: &mut GroundStation, seconds: f64, sweep: bool) {
     }
 }
 
+/// PX4's onboard 10 Hz stream raised to `asked` Hz: at least 90 % of it by the bridge's own
+/// meter and by the tap.
+async fn outputs_raised(chain: &Chain, tap: &Tap, asked: f32) {
+    chain
+        .wait_view("SERVO_OUTPUT_RAW raised", SECS(30), |v| {
+            v.outputs_received_hz
+                .iter()
+                .any(|(port, hz)| *port == 0 && *hz >= 0.9 * asked)
+        })
+        .await;
+    let since = Instant::now();
+    tokio::time::sleep(SECS(3)).await;
+    let metered = chain.view.borrow().outputs_received_hz.clone();
+    let tapped = tapped_rate(tap, since, SECS(3));
+    assert!(
+        metered.iter().any(|(p, hz)| *p == 0 && *hz >= 0.9 * asked)
+            && tapped >= 0.9 * f64::from(asked),
+        "asked {asked} Hz: the bridge's meter {metered:?}, the tap {tapped:.1} Hz"
+    );
+}
+
+/// PX4 in Manual and armed (its outputs leave their disarmed 900 µs).
+fn px4_armed_in_manual(gcs: &mut GroundStation) {
+    let manual = [1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    assert_eq!(command(gcs, MAV_CMD_DO_SET_MODE, manual), 0, "Manual");
+    let arm = [1.0, 21196.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    assert_eq!(command(gcs, MAV_CMD_COMPONENT_ARM_DISARM, arm), 0, "arming");
+}
+
+/// Actuator Set 1 (the gear door's output, function 301) to +0.5, then −0.4.
+async fn gear_door_moved(gcs: &mut GroundStation) {
+    for value in [0.5f32, -0.4] {
+        let set = [value, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        assert_eq!(
+            command(gcs, MAV_CMD_DO_SET_ACTUATOR, set),
+            0,
+            "DO_SET_ACTUATOR {value}"
+        );
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 #[ignore = "needs PX4 SITL and its fixed ports: run by .ci/autopilots"]
 async fn px4_airplane_set_up_as_the_page_says() {
@@ -720,60 +762,16 @@ async fn px4_airplane_set_up_as_the_page_says() {
     let chain = Chain::start_opts(&text, ChainOptions::default()).await;
     tap.to_bridge(chain.autopilot_port);
 
-    // PX4's onboard 10 Hz stream raised to the mapping's rate, by the bridge's own meter.
-    let asked = cfg.mavlink.output_rate_hz;
-    chain
-        .wait_view("SERVO_OUTPUT_RAW raised", SECS(30), |v| {
-            v.outputs_received_hz
-                .iter()
-                .any(|(port, hz)| *port == 0 && *hz >= 0.9 * asked)
-        })
-        .await;
-    let since = Instant::now();
-    tokio::time::sleep(SECS(3)).await;
-    let metered = chain.view.borrow().outputs_received_hz.clone();
-    let tapped = tapped_rate(&tap, since, SECS(3));
-    assert!(
-        metered.iter().any(|(p, hz)| *p == 0 && *hz >= 0.9 * asked)
-            && tapped >= 0.9 * f64::from(asked),
-        "asked {asked} Hz: the bridge's meter {metered:?}, the tap {tapped:.1} Hz"
-    );
+    outputs_raised(&chain, &tap, cfg.mavlink.output_rate_hz).await;
 
     // Armed in Manual, the sticks move the surfaces, DO_SET_ACTUATOR the gear door; every
     // goal follows PX4's outputs.
     manual_sticks(&mut gcs, 1.0, false).await;
-    assert_eq!(
-        command(
-            &mut gcs,
-            MAV_CMD_DO_SET_MODE,
-            [1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-        ),
-        0
-    );
-    assert_eq!(
-        command(
-            &mut gcs,
-            MAV_CMD_COMPONENT_ARM_DISARM,
-            [1.0, 21196.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-        ),
-        0,
-        "arming"
-    );
+    px4_armed_in_manual(&mut gcs);
     let events = chain.sims[0].handle().subscribe();
     let sweep_from = Instant::now();
     manual_sticks(&mut gcs, 4.0, true).await;
-    for value in [0.5f32, -0.4] {
-        assert_eq!(
-            command(
-                &mut gcs,
-                MAV_CMD_DO_SET_ACTUATOR,
-                [value, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-            ),
-            0,
-            "DO_SET_ACTUATOR {value}"
-        );
-        tokio::time::sleep(Duration::from_millis(500)).await;
-    }
+    gear_door_moved(&mut gcs).await;
     goals_follow_outputs(
         &cfg,
         &long_packets(&events),
@@ -789,6 +787,43 @@ async fn px4_airplane_set_up_as_the_page_says() {
 
     // A ground station on PX4's own link sees the bridge's health, forwarded by PX4.
     sees_the_bridges_health(&gcs, &chain);
+    drop(gcs);
+    chain.stop().await;
+    drop(px4);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+#[ignore = "needs PX4 SITL and its fixed ports: run by .ci/autopilots"]
+async fn px4_quadrotor_with_the_pages_minimal_mapping() {
+    let root = autopilots::px4()
+        .expect("no PX4 SITL: set LJ9DA_PX4 to a folder with bin/px4 and etc/ (a SITL build)");
+    let dir = fresh_dir("px4-quad");
+    let params = px4_parameters();
+    let params: Vec<(&str, &str)> = params
+        .iter()
+        .map(|(n, v)| (n.as_str(), v.as_str()))
+        .collect();
+    let tap = Tap::start(14540);
+    let mut gcs = GroundStation::connect("udpin:127.0.0.1:14550");
+    let px4 = Autopilot::px4(&root, "sihsim_quadx", &dir, &params);
+    tap.wait_for_autopilot(SECS(30), || px4.console());
+    let text = block_after(PAGE, "<!-- sitl: the PX4 minimal mapping -->");
+    let cfg = Config::parse(&text, "the page's minimal PX4 mapping").unwrap();
+    let chain = Chain::start_opts(&text, ChainOptions::default()).await;
+    tap.to_bridge(chain.autopilot_port);
+    outputs_raised(&chain, &tap, cfg.mavlink.output_rate_hz).await;
+
+    manual_sticks(&mut gcs, 1.0, false).await;
+    px4_armed_in_manual(&mut gcs);
+    let events = chain.sims[0].handle().subscribe();
+    let from = Instant::now();
+    gear_door_moved(&mut gcs).await;
+    goals_follow_outputs(
+        &cfg,
+        &long_packets(&events),
+        &tap.outputs_since(from - SECS(1)),
+        &[("gear_door", 2)],
+    );
     drop(gcs);
     chain.stop().await;
     drop(px4);
