@@ -10,6 +10,7 @@ use lj9da_bridge::runtime;
 use lj9da_bridge::simulation::{self, SitlOptions};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::time::Duration;
 
 #[derive(Parser)]
 #[command(
@@ -50,8 +51,8 @@ enum Command {
         #[arg(long)]
         autopilot: Option<String>,
         /// Stop after this many seconds (default: run until Ctrl-C).
-        #[arg(long)]
-        seconds: Option<f64>,
+        #[arg(long, value_name = "S", value_parser = parse_seconds)]
+        seconds: Option<Duration>,
         /// Where to serve telemetry for a ground station.
         #[arg(long)]
         gcs: Option<String>,
@@ -128,6 +129,18 @@ fn load(path: &Path) -> Result<Config, ExitCode> {
         return Err(ExitCode::from(2));
     }
     Ok(cfg)
+}
+
+/// `--seconds`: a finite, positive number of seconds (clap says which argument was wrong).
+fn parse_seconds(text: &str) -> Result<Duration, String> {
+    let seconds: f64 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{text}` is not a number of seconds"))?;
+    Duration::try_from_secs_f64(seconds)
+        .ok()
+        .filter(|d| !d.is_zero())
+        .ok_or_else(|| format!("{text} s: give a positive number of seconds, e.g. 20"))
 }
 
 fn main() -> ExitCode {

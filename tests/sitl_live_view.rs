@@ -185,3 +185,22 @@ fn sitl_with_a_mapping_records_into_the_current_folder_not_beside_the_mapping() 
         "sitl wrote records beside the mapping file"
     );
 }
+
+/// `--seconds` that is no duration (negative, not a number, beyond what a clock holds, zero) is
+/// refused by name with the reason, as any bad argument: exit 2, nothing started.
+#[test]
+fn sitl_refuses_seconds_that_are_no_duration() {
+    for bad in ["-1", "nan", "inf", "1e20", "0", "ten"] {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
+            .args(["sitl", "--plain", &format!("--seconds={bad}")])
+            .output()
+            .expect("the binary runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "--seconds={bad}: {stderr}");
+        assert!(
+            stderr.contains("--seconds") && stderr.contains("seconds, e.g. 20")
+                || stderr.contains("is not a number of seconds"),
+            "--seconds={bad}: {stderr}"
+        );
+    }
+}

@@ -29,7 +29,7 @@ pub struct SitlOptions {
     /// A real autopilot's MAVLink address instead of the simulated one.
     pub autopilot: Option<String>,
     /// Stop after this long; `None`: run until Ctrl-C.
-    pub seconds: Option<f64>,
+    pub seconds: Option<Duration>,
     /// Where to serve telemetry for a ground station.
     pub gcs: Option<String>,
     /// Print the table as plain snapshots once a second instead of the live view.
@@ -174,7 +174,7 @@ pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
     };
     let bridge = tokio::spawn(runtime::run(cfg, run_opts, stop_rx));
 
-    let deadline = opts.seconds.map(Duration::from_secs_f64);
+    let deadline = opts.seconds;
     let mut view_ended = false;
     tokio::select! {
         _ = async {
