@@ -1,6 +1,7 @@
 //! The Python with pymavlink (from PyPI) that the tests run as a third-party autopilot or
 //! ground station: `$LJ9DA_PYTHON` if set, else a virtual environment under the target directory,
-//! made with `pip install pymavlink` by whichever test asks first.
+//! made with `pip install` of [`PYMAVLINK`] (pinned: the tests read what its parser decodes)
+//! by whichever test asks first.
 //!
 //! Tests of one binary run on threads and the binaries of a workspace may run side by side, so
 //! the environment is made under an exclusive `flock` on a file beside it, and is used only once
@@ -14,6 +15,10 @@ use std::sync::OnceLock;
 
 use nix::fcntl::{Flock, FlockArg};
 
+/// The pymavlink the tests install. A new pin makes a new environment (the ready marker
+/// names it).
+pub const PYMAVLINK: &str = "pymavlink==2.4.50";
+
 pub fn python() -> PathBuf {
     if let Some(p) = std::env::var_os("LJ9DA_PYTHON") {
         return PathBuf::from(p);
@@ -26,7 +31,7 @@ pub fn python() -> PathBuf {
 fn make_venv(dir: &Path) -> PathBuf {
     let venv = dir.join("pymavlink-venv");
     let python = venv.join("bin/python");
-    let marker = venv.join("lj9da-ready");
+    let marker = venv.join(format!("lj9da-ready-{PYMAVLINK}"));
     fs::create_dir_all(dir).expect("create the target's tmp directory");
     let lock = File::create(dir.join("pymavlink-venv.lock")).expect("create the venv lock file");
     // Held until the end of this function: a second process waits here and then finds the marker.
@@ -53,12 +58,12 @@ fn make_venv(dir: &Path) -> PathBuf {
             "install",
             "--quiet",
             "--disable-pip-version-check",
-            "pymavlink",
+            PYMAVLINK,
         ])
         .status();
     assert!(
         pip.is_ok_and(|s| s.success()),
-        "`pip install pymavlink` into {} failed (it needs PyPI)",
+        "`pip install {PYMAVLINK}` into {} failed (it needs PyPI)",
         venv.display()
     );
     let works = Command::new(&python)
@@ -69,6 +74,6 @@ fn make_venv(dir: &Path) -> PathBuf {
         "pymavlink was installed into {} but does not import",
         venv.display()
     );
-    fs::write(&marker, b"pymavlink installed\n").expect("write the venv's ready marker");
+    fs::write(&marker, format!("{PYMAVLINK} installed\n")).expect("write the venv's ready marker");
     python
 }
