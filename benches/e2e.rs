@@ -1298,9 +1298,18 @@ fn report(case: &Case, peer: &Peer, mut o: Outcome) -> Figures {
     }
 }
 
+/// The time of day, UTC, to line the runs up with what else the machine ran.
+fn clock_time() -> String {
+    let s = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    format!("{:02}:{:02}:{:02}", s / 3600 % 24, s / 60 % 60, s % 60)
+}
+
 /// Where a case ran with the bridge and another peer: their figures side by side, with the
-/// ratio peer/bridge (above 1: the peer's is higher).
-fn compare(case: &Case, runs: &[(&Peer, Figures)]) {
+/// ratio peer/bridge (above 1: the peer's is higher), headed by the case, quiet or beside how
+/// many hogs, and `when` the two runs took place.
+fn compare(case: &Case, runs: &[(&Peer, Figures)], when: &str) {
     let Some((_, bridge)) = runs.iter().find(|(p, _)| matches!(p, Peer::Bridge)) else {
         return;
     };
@@ -1313,8 +1322,17 @@ fn compare(case: &Case, runs: &[(&Peer, Figures)]) {
     for (peer, other) in runs.iter().filter(|(p, _)| !matches!(p, Peer::Bridge)) {
         let name = peer.name();
         println!(
+            "    {} {}, {}, {when} UTC:",
+            case.name(),
+            case.scenario.name(),
+            match case.hogs {
+                0 => "quiet".to_string(),
+                n => format!("beside {n} hogs"),
+            }
+        );
+        println!(
             "    {:<30} {:>9} {:>9} {:>12}",
-            format!("{} {}", case.name(), case.scenario.name()),
+            "",
             "bridge",
             name,
             format!("{name}/bridge")
@@ -1494,6 +1512,7 @@ fn main() {
             order.reverse();
         }
         selected += 1;
+        let started = clock_time();
         let mut figures = Vec::new();
         for peer in order {
             let hogs = Hogs::start(case.hogs);
@@ -1501,7 +1520,7 @@ fn main() {
             drop(hogs);
             figures.push((peer, report(&case, peer, o)));
         }
-        compare(&case, &figures);
+        compare(&case, &figures, &format!("{started}–{}", clock_time()));
         let _ = std::io::stdout().flush();
     }
     println!(
