@@ -530,6 +530,56 @@ fn failsafe_is_per_servo_kept_only_by_the_messages_that_carry_its_channel() {
     assert_eq!(commands(&mut c), vec![(1, Goal::Position(MmCenti(500)))]);
 }
 
+/// Both ports at 50 Hz, port 1 `lag` after port 0 (PX4 sends its output drivers as separate
+/// streams), for 2 s; then the whole stream stops. The texts said over the next second.
+fn texts_when_a_two_port_stream_stops(lag: Duration) -> Vec<(MavSeverity, String)> {
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    let mut t = t0;
+    for _ in 0..100 {
+        t += Duration::from_millis(20);
+        c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), t);
+        c.handle_timeout(t, &[]);
+        c.handle_message(0, &header(AP), &outputs(1, &[(2, 1520)]), t + lag);
+        c.handle_timeout(t + lag, &[]);
+    }
+    messages(&mut c);
+    let last = t + lag;
+    let mut texts = Vec::new();
+    while t < last + Duration::from_secs(1) {
+        t += Duration::from_millis(1);
+        c.handle_timeout(t, &[]);
+        texts.extend(statustexts(&messages(&mut c)));
+    }
+    assert!(c.servo_in_failsafe(0) && c.servo_in_failsafe(1));
+    texts
+}
+
+#[test]
+fn a_stream_that_stops_is_one_text_when_its_ports_come_40_ms_apart() {
+    let texts = texts_when_a_two_port_stream_stops(Duration::from_millis(40));
+    assert_eq!(
+        texts,
+        vec![(
+            MavSeverity::MAV_SEVERITY_WARNING,
+            "LJ9DA failsafe: no outputs for 500 ms".to_string()
+        )],
+        "the stream's text alone: port 0's channel was not missing while the stream went on"
+    );
+}
+
+#[test]
+fn a_stream_that_stops_is_one_text_when_its_ports_come_microseconds_apart() {
+    let texts = texts_when_a_two_port_stream_stops(Duration::from_micros(5));
+    assert_eq!(
+        texts,
+        vec![(
+            MavSeverity::MAV_SEVERITY_WARNING,
+            "LJ9DA failsafe: no outputs for 500 ms".to_string()
+        )]
+    );
+}
+
 #[test]
 fn after_the_streams_failsafe_a_channel_that_does_not_return_is_announced() {
     let t0 = Instant::now();
@@ -555,6 +605,14 @@ fn after_the_streams_failsafe_a_channel_that_does_not_return_is_announced() {
         back + Duration::from_millis(400),
     );
     c.handle_timeout(back + Duration::from_millis(500), &[]);
+    assert!(c.servo_in_failsafe(1));
+    // Said with the next message that comes without channel 18: the stream goes on without it.
+    c.handle_message(
+        0,
+        &header(AP),
+        &outputs(0, &[(1, 1520)]),
+        back + Duration::from_millis(520),
+    );
     let texts = statustexts(&messages(&mut c));
     assert!(
         texts.contains(&(

@@ -112,8 +112,12 @@ struct ServoSlot {
     carried_at: Option<Instant>,
     /// The servo has taken its failsafe action and not yet had its channel back.
     failsafe: bool,
-    /// Its channel's absence has been announced (once per absence).
+    /// Its channel's absence has been dealt with (failsafe taken; once per absence).
     missing_announced: bool,
+    /// ... but not yet said: it is said with the next output message that comes without the
+    /// channel (the stream lives on without it). If the whole stream stops first, the stream's
+    /// failsafe text says it all; if the next message carries the channel, nothing is said.
+    missing_unsaid: bool,
     /// Some output message has carried its channel.
     ever_carried: bool,
     /// An output message or command has carried it since [`BridgeCore::take_output_ticks`].
@@ -169,6 +173,7 @@ impl BridgeCore {
                 carried_at: None,
                 failsafe: false,
                 missing_announced: false,
+                missing_unsaid: false,
                 ever_carried: false,
                 ticked: false,
             })
@@ -356,6 +361,7 @@ impl BridgeCore {
             // The rate is measured from the stream's return (see `RateMeter::restart`).
             self.rate.restart(now);
         }
+        self.say_missing_channels(values, now);
         let fastest = self.rate.count(port, self.requested_rate_hz, now);
         self.judge_rate(fastest);
         if stream_back {
@@ -389,6 +395,30 @@ impl BridgeCore {
 
     /// The servos whose channel `values` carries leave their failsafe; the watch for the
     /// others begins now if it has not begun, or begins again after the stream's failsafe.
+    /// An output message came: a servo whose channel's absence was dealt with but not yet
+    /// said is said missing now if this message goes on without its channel; if it carries
+    /// the channel, that was a pause, not an absence, and nothing is said either way.
+    fn say_missing_channels(&mut self, values: &ChannelValues, now: Instant) {
+        let timeout_ms = self.cfg.mavlink.failsafe_timeout_ms;
+        for i in 0..self.servos.len() {
+            let slot = &mut self.servos[i];
+            if !std::mem::take(&mut slot.missing_unsaid) {
+                continue;
+            }
+            let channel = slot.channel;
+            if values.get(channel).is_some() {
+                slot.missing_announced = false;
+            } else {
+                let missing = BridgeEvent::ChannelMissing {
+                    servo: i,
+                    channel,
+                    timeout_ms,
+                };
+                self.event(missing, now);
+            }
+        }
+    }
+
     fn keep_servo_failsafes(&mut self, values: &ChannelValues, stream_back: bool, now: Instant) {
         for i in 0..self.servos.len() {
             let slot = &mut self.servos[i];
@@ -782,6 +812,7 @@ impl BridgeCore {
                 slot.channel = channel;
                 slot.override_latch = None;
                 slot.missing_announced = false;
+                slot.missing_unsaid = false;
                 slot.ever_carried = false;
                 slot.carried_at = self.last_output_at.map(|_| now);
             }
@@ -843,6 +874,11 @@ impl BridgeCore {
             self.next_stream_request = now;
             for i in 0..self.servos.len() {
                 self.enter_servo_failsafe(i);
+                // The stream's text covers a channel whose absence was not said yet.
+                let slot = &mut self.servos[i];
+                if std::mem::take(&mut slot.missing_unsaid) {
+                    slot.missing_announced = false;
+                }
             }
             self.event(BridgeEvent::FailsafeEntered { timeout_ms }, now);
             return;
@@ -855,17 +891,11 @@ impl BridgeCore {
             if !missing || slot.missing_announced || self.commanded_only(i) {
                 continue;
             }
-            let channel = slot.channel;
+            // The failsafe now; the text once another message shows the stream goes on
+            // without the channel (`say_missing_channels`).
             self.servos[i].missing_announced = true;
+            self.servos[i].missing_unsaid = true;
             self.enter_servo_failsafe(i);
-            self.event(
-                BridgeEvent::ChannelMissing {
-                    servo: i,
-                    channel,
-                    timeout_ms,
-                },
-                now,
-            );
         }
     }
 
