@@ -41,7 +41,7 @@ enum Command {
     /// The whole chain in simulation: simulated servos on pseudo-terminals, a simulated
     /// autopilot (or a real autopilot SITL), the bridge between them over MAVLink/UDP.
     #[command(
-        after_help = "Examples:\n  lj9da-bridge sitl --seconds 20\n  lj9da-bridge sitl --config mappings/ardupilot-plane.toml --autopilot udpin:0.0.0.0:14560\n      (ArduPilot SITL: sim_vehicle.py -v ArduPlane --out=udp:127.0.0.1:14560,\n       or arduplane --model plane --serial0=tcp:0 --serial1=udpclient:127.0.0.1:14560)\n  lj9da-bridge sitl --config mappings/px4-vtol.toml --autopilot udpin:0.0.0.0:14540\n      (PX4 SITL: its onboard link sends to UDP 14540)\n\nThe bridge's telemetry is served on udpout:127.0.0.1:14550 for QGroundControl or MAVProxy."
+        after_help = "Examples:\n  lj9da-bridge sitl --seconds 20\n  lj9da-bridge sitl --config bridge.toml --autopilot udpin:0.0.0.0:14560\n      (ArduPilot SITL: arduplane … --serial0=tcp:0 --serial1=udpclient:127.0.0.1:14560)\n  lj9da-bridge sitl --config mappings/px4-vtol.toml --autopilot udpin:0.0.0.0:14540 --gcs udpout:127.0.0.1:14551\n      (PX4 SITL: its onboard link sends to UDP 14540)\n  The autopilot's parameters for these mappings: docs/autopilot.md, \"SITL with the example mapping\".\n\nThe bridge's telemetry is served on udpout:127.0.0.1:14550 for QGroundControl or MAVProxy."
     )]
     Sitl {
         /// An airframe's mapping file; its buses get simulated servos instead of their ports.

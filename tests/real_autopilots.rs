@@ -596,11 +596,11 @@ async fn arduplane_set_up_as_the_page_says() {
         .unwrap()
         .0;
     let after = announced.duration_since(last_output);
+    let timeout = Duration::from_millis(cfg.mavlink.failsafe_timeout_ms.into());
     assert!(
-        after
-            <= Duration::from_millis(cfg.mavlink.failsafe_timeout_ms.into())
-                + Duration::from_millis(100),
-        "failsafe announced {after:?} after the autopilot's last output"
+        (timeout..=timeout + Duration::from_millis(100)).contains(&after),
+        "failsafe announced {after:?} after the autopilot's last output, not within \
+         {timeout:?} + 100 ms"
     );
     eprintln!("failsafe announced {after:?} after the autopilot's last output");
     let ap = Autopilot::arduplane(&binary, &dir, &defaults, 14560);
