@@ -717,6 +717,16 @@ async fn outputs_raised(chain: &Chain, tap: &Tap, asked: f32) {
     );
 }
 
+/// The bridge on `mapping`, PX4's outputs passed to it by `tap`, once their stream is raised
+/// to the mapping's rate ([`outputs_raised`]).
+async fn px4_bridge(mapping: &str, tap: &Tap) -> (Chain, Config) {
+    let cfg = Config::parse(mapping, "the PX4 mapping").expect("the mapping is valid");
+    let chain = Chain::start_opts(mapping, ChainOptions::default()).await;
+    tap.to_bridge(chain.autopilot_port);
+    outputs_raised(&chain, tap, cfg.mavlink.output_rate_hz).await;
+    (chain, cfg)
+}
+
 /// PX4 in Manual and armed (its outputs leave their disarmed 900 µs).
 fn px4_armed_in_manual(gcs: &mut GroundStation) {
     let manual = [1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0];
@@ -738,31 +748,33 @@ async fn gear_door_moved(gcs: &mut GroundStation) {
     }
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
-#[ignore = "needs PX4 SITL and its fixed ports: run by .ci/autopilots"]
-async fn px4_airplane_set_up_as_the_page_says() {
+/// PX4 SITL as `model`, with the page's parameter lines, sending its onboard link through a
+/// tap on UDP 14540; a ground station on its own link (UDP 14550).
+fn px4_as_the_page_says(model: &str) -> (Autopilot, Tap, GroundStation) {
     let root = autopilots::px4()
         .expect("no PX4 SITL: set LJ9DA_PX4 to a folder with bin/px4 and etc/ (a SITL build)");
-    let dir = fresh_dir("px4");
     let params = px4_parameters();
     let params: Vec<(&str, &str)> = params
         .iter()
         .map(|(n, v)| (n.as_str(), v.as_str()))
         .collect();
     let tap = Tap::start(14540);
-    let mut gcs = GroundStation::connect("udpin:127.0.0.1:14550");
-    let px4 = Autopilot::px4(&root, "sihsim_airplane", &dir, &params);
+    let gcs = GroundStation::connect("udpin:127.0.0.1:14550");
+    let px4 = Autopilot::px4(&root, model, &fresh_dir(model), &params);
     tap.wait_for_autopilot(SECS(30), || px4.console());
+    (px4, tap, gcs)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+#[ignore = "needs PX4 SITL and its fixed ports: run by .ci/autopilots"]
+async fn px4_airplane_set_up_as_the_page_says() {
+    let (px4, tap, mut gcs) = px4_as_the_page_says("sihsim_airplane");
     let text = std::fs::read_to_string(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/mappings/px4-vtol.toml"
     ))
     .unwrap();
-    let cfg = Config::parse(&text, "mappings/px4-vtol.toml").unwrap();
-    let chain = Chain::start_opts(&text, ChainOptions::default()).await;
-    tap.to_bridge(chain.autopilot_port);
-
-    outputs_raised(&chain, &tap, cfg.mavlink.output_rate_hz).await;
+    let (chain, cfg) = px4_bridge(&text, &tap).await;
 
     // Armed in Manual, the sticks move the surfaces, DO_SET_ACTUATOR the gear door; every
     // goal follows PX4's outputs.
@@ -795,23 +807,9 @@ async fn px4_airplane_set_up_as_the_page_says() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 #[ignore = "needs PX4 SITL and its fixed ports: run by .ci/autopilots"]
 async fn px4_quadrotor_with_the_pages_minimal_mapping() {
-    let root = autopilots::px4()
-        .expect("no PX4 SITL: set LJ9DA_PX4 to a folder with bin/px4 and etc/ (a SITL build)");
-    let dir = fresh_dir("px4-quad");
-    let params = px4_parameters();
-    let params: Vec<(&str, &str)> = params
-        .iter()
-        .map(|(n, v)| (n.as_str(), v.as_str()))
-        .collect();
-    let tap = Tap::start(14540);
-    let mut gcs = GroundStation::connect("udpin:127.0.0.1:14550");
-    let px4 = Autopilot::px4(&root, "sihsim_quadx", &dir, &params);
-    tap.wait_for_autopilot(SECS(30), || px4.console());
+    let (px4, tap, mut gcs) = px4_as_the_page_says("sihsim_quadx");
     let text = block_after(PAGE, "<!-- sitl: the PX4 minimal mapping -->");
-    let cfg = Config::parse(&text, "the page's minimal PX4 mapping").unwrap();
-    let chain = Chain::start_opts(&text, ChainOptions::default()).await;
-    tap.to_bridge(chain.autopilot_port);
-    outputs_raised(&chain, &tap, cfg.mavlink.output_rate_hz).await;
+    let (chain, cfg) = px4_bridge(&text, &tap).await;
 
     manual_sticks(&mut gcs, 1.0, false).await;
     px4_armed_in_manual(&mut gcs);
