@@ -5,7 +5,6 @@
 //! Where the autopilots are: `$LJ9DA_ARDUPLANE` (the `arduplane` program; its SITL defaults
 //! `plane.parm` beside it, or `$LJ9DA_ARDUPLANE_DEFAULTS`) and `$LJ9DA_PX4` (a folder with
 //! `bin/px4` and `etc/`), else `../shared/sitl/` beside the repository.
-#![allow(dead_code)]
 
 use crate::common::python::python;
 use mavlink::MavlinkReader;
@@ -74,8 +73,7 @@ pub fn block_after(page: &str, marker: &str) -> String {
 /// An autopilot process, killed when dropped.
 pub struct Autopilot {
     child: Child,
-    pub dir: PathBuf,
-    pub log: PathBuf,
+    log: PathBuf,
 }
 
 impl Autopilot {
@@ -100,11 +98,7 @@ impl Autopilot {
             ))
             .spawn()
             .unwrap_or_else(|e| panic!("{} does not start: {e}", binary.display()));
-        Autopilot {
-            child,
-            dir: dir.to_path_buf(),
-            log,
-        }
+        Autopilot { child, log }
     }
 
     /// PX4 SITL (SIH) as `model` in `dir`, with parameters `params` set at boot
@@ -128,11 +122,7 @@ impl Autopilot {
             command.env(format!("PX4_PARAM_{name}"), value);
         }
         let child = command.spawn().expect("px4 starts");
-        let ap = Autopilot {
-            child,
-            dir: dir.to_path_buf(),
-            log,
-        };
+        let ap = Autopilot { child, log };
         let deadline = Instant::now() + Duration::from_secs(60);
         loop {
             let text = std::fs::read_to_string(&ap.log).unwrap_or_default();
@@ -149,10 +139,6 @@ impl Autopilot {
             );
             std::thread::sleep(Duration::from_millis(100));
         }
-    }
-
-    pub fn pid(&self) -> u32 {
-        self.child.id()
     }
 
     /// Kill it at once (SIGKILL), as a crash would, and wait for it.
@@ -416,11 +402,6 @@ impl GroundStation {
     pub fn command(&mut self, command: serde_json::Value) {
         writeln!(self.stdin, "{command}").expect("the ground station takes a command");
         self.stdin.flush().unwrap();
-    }
-
-    /// Everything heard so far.
-    pub fn heard(&self) -> Vec<GcsMessage> {
-        self.heard.lock().unwrap().clone()
     }
 
     /// How many messages heard so far (a mark for [`GroundStation::heard_after`]).
