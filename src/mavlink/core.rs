@@ -100,6 +100,20 @@ fn software_version() -> u32 {
         | 255
 }
 
+/// A servo's channel missing from the output messages that go on without it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Absence {
+    /// Not missing (or not for `failsafe_timeout_ms` yet): watched.
+    None,
+    /// Missing for the timeout: the failsafe is taken, the text waits for the next output
+    /// message that comes without the channel (the stream lives on without it). If the whole
+    /// stream stops first, the stream's failsafe text says it all; if the next message carries
+    /// the channel, nothing is said.
+    Unsaid,
+    /// Missing, and said: its return is said too.
+    Said,
+}
+
 #[derive(Debug)]
 struct ServoSlot {
     channel: u8,
@@ -112,12 +126,8 @@ struct ServoSlot {
     carried_at: Option<Instant>,
     /// The servo has taken its failsafe action and not yet had its channel back.
     failsafe: bool,
-    /// Its channel's absence has been dealt with (failsafe taken; once per absence).
-    missing_announced: bool,
-    /// ... but not yet said: it is said with the next output message that comes without the
-    /// channel (the stream lives on without it). If the whole stream stops first, the stream's
-    /// failsafe text says it all; if the next message carries the channel, nothing is said.
-    missing_unsaid: bool,
+    /// Where its channel's absence stands (once per absence).
+    absence: Absence,
     /// Some output message has carried its channel.
     ever_carried: bool,
     /// An output message or command has carried it since [`BridgeCore::take_output_ticks`].
@@ -172,8 +182,7 @@ impl BridgeCore {
                 last_command: None,
                 carried_at: None,
                 failsafe: false,
-                missing_announced: false,
-                missing_unsaid: false,
+                absence: Absence::None,
                 ever_carried: false,
                 ticked: false,
             })
@@ -393,22 +402,21 @@ impl BridgeCore {
         }
     }
 
-    /// The servos whose channel `values` carries leave their failsafe; the watch for the
-    /// others begins now if it has not begun, or begins again after the stream's failsafe.
-    /// An output message came: a servo whose channel's absence was dealt with but not yet
-    /// said is said missing now if this message goes on without its channel; if it carries
-    /// the channel, that was a pause, not an absence, and nothing is said either way.
+    /// An output message came: a servo whose channel's absence is not said yet is said
+    /// missing now if this message goes on without its channel; if it carries the channel,
+    /// that was a pause, not an absence, and nothing is said either way.
     fn say_missing_channels(&mut self, values: &ChannelValues, now: Instant) {
         let timeout_ms = self.cfg.mavlink.failsafe_timeout_ms;
         for i in 0..self.servos.len() {
             let slot = &mut self.servos[i];
-            if !std::mem::take(&mut slot.missing_unsaid) {
+            if slot.absence != Absence::Unsaid {
                 continue;
             }
             let channel = slot.channel;
             if values.get(channel).is_some() {
-                slot.missing_announced = false;
+                slot.absence = Absence::None;
             } else {
+                slot.absence = Absence::Said;
                 let missing = BridgeEvent::ChannelMissing {
                     servo: i,
                     channel,
@@ -419,6 +427,8 @@ impl BridgeCore {
         }
     }
 
+    /// The servos whose channel `values` carries leave their failsafe; the watch for the
+    /// others begins now if it has not begun, or begins again after the stream's failsafe.
     fn keep_servo_failsafes(&mut self, values: &ChannelValues, stream_back: bool, now: Instant) {
         for i in 0..self.servos.len() {
             let slot = &mut self.servos[i];
@@ -433,7 +443,7 @@ impl BridgeCore {
             slot.ever_carried = true;
             slot.ticked = true;
             slot.failsafe = false;
-            if std::mem::take(&mut slot.missing_announced) {
+            if std::mem::replace(&mut slot.absence, Absence::None) == Absence::Said {
                 self.event(BridgeEvent::ChannelBack { servo: i, channel }, now);
             }
         }
@@ -811,8 +821,7 @@ impl BridgeCore {
             if slot.channel != channel {
                 slot.channel = channel;
                 slot.override_latch = None;
-                slot.missing_announced = false;
-                slot.missing_unsaid = false;
+                slot.absence = Absence::None;
                 slot.ever_carried = false;
                 slot.carried_at = self.last_output_at.map(|_| now);
             }
@@ -876,8 +885,8 @@ impl BridgeCore {
                 self.enter_servo_failsafe(i);
                 // The stream's text covers a channel whose absence was not said yet.
                 let slot = &mut self.servos[i];
-                if std::mem::take(&mut slot.missing_unsaid) {
-                    slot.missing_announced = false;
+                if slot.absence == Absence::Unsaid {
+                    slot.absence = Absence::None;
                 }
             }
             self.event(BridgeEvent::FailsafeEntered { timeout_ms }, now);
@@ -888,13 +897,12 @@ impl BridgeCore {
             let missing = slot
                 .carried_at
                 .is_some_and(|at| now.duration_since(at) >= timeout);
-            if !missing || slot.missing_announced || self.commanded_only(i) {
+            if !missing || slot.absence != Absence::None || self.commanded_only(i) {
                 continue;
             }
             // The failsafe now; the text once another message shows the stream goes on
             // without the channel (`say_missing_channels`).
-            self.servos[i].missing_announced = true;
-            self.servos[i].missing_unsaid = true;
+            self.servos[i].absence = Absence::Unsaid;
             self.enter_servo_failsafe(i);
         }
     }
@@ -954,7 +962,7 @@ impl BridgeCore {
             let timeout = self.failsafe_timeout();
             let mut due = last + timeout;
             let watched = (0..self.servos.len())
-                .filter(|i| !self.servos[*i].missing_announced && !self.commanded_only(*i))
+                .filter(|i| self.servos[*i].absence == Absence::None && !self.commanded_only(*i))
                 .map(|i| &self.servos[i]);
             if let Some(at) = watched.filter_map(|s| s.carried_at).min() {
                 due = due.min(at + timeout);
