@@ -378,9 +378,8 @@ impl Probe {
                 std::thread::spawn(move || {
                     pin_to_cpu(cpu);
                     let _ = nix::sys::prctl::set_timerslack(1_000);
-                    let _ = lj9da_sim::realtime::request_fifo(
-                        lj9da_bridge::bus::driver::REALTIME_PRIORITY,
-                    );
+                    let _ =
+                        lj9da_realtime::request_fifo(lj9da_bridge::bus::driver::REALTIME_PRIORITY);
                     let mut stalls = Vec::new();
                     // Wake-ups on a fixed grid: a stall while the probe ran (between a wake-up
                     // and its next sleep) still makes the next wake-up late.
@@ -733,7 +732,7 @@ fn run_case(case: &Case, seconds: f64, peer: &Peer) -> Outcome {
     // The autopilot is another computer: its sends keep their time whatever the companion
     // computer runs. The sender asks for a real-time priority above the bridge's and the
     // simulator's (where granted; the send instants are measured either way).
-    let _ = lj9da_sim::realtime::request_fifo(SENDER_PRIORITY);
+    let _ = lj9da_realtime::request_fifo(SENDER_PRIORITY);
     let schedule = schedule(case, seconds, Instant::now() + Duration::from_millis(20));
     let mut sends: Vec<Send> = Vec::with_capacity(schedule.len());
     for (k, m) in schedule.into_iter().enumerate() {

@@ -9,7 +9,8 @@
 //! - [`runtime`]: `lj9da-bridge run`, the tokio shell joining MAVLink and the buses.
 //! - [`ui`]: how a running bridge and the servos are shown: live view, plain table, terminal.
 //! - [`serial`]: serial ports: a UART's RS485 mode, the list of ports (`lj9da-bridge ports`).
-//! - [`simulation`]: `lj9da-bridge sitl`, the whole chain with simulated servos and autopilot.
+//! - `simulation`: `lj9da-bridge sitl`, the whole chain with simulated servos and autopilot
+//!   (feature `sitl`, on by default; the Debian package is built without it).
 
 pub mod bus;
 pub mod commission;
@@ -22,5 +23,6 @@ pub mod protocol;
 pub mod record;
 pub mod runtime;
 pub mod serial;
+#[cfg(feature = "sitl")]
 pub mod simulation;
 pub mod ui;

@@ -7,6 +7,7 @@ use lj9da_bridge::config::Config;
 use lj9da_bridge::deploy::DeployCommand;
 use lj9da_bridge::record::RecordCommand;
 use lj9da_bridge::runtime;
+#[cfg(feature = "sitl")]
 use lj9da_bridge::simulation::{self, SitlOptions};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -181,7 +182,7 @@ fn main() -> ExitCode {
             rt.block_on(async {
                 let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
                 tokio::spawn(async move {
-                    simulation::shutdown_signal().await;
+                    runtime::shutdown_signal().await;
                     tracing::info!("stop requested");
                     let _ = stop_tx.send(true);
                 });
@@ -208,24 +209,37 @@ fn main() -> ExitCode {
             gcs,
             plain,
         } => {
-            let loaded = match config.as_ref().map(|p| load(p)).transpose() {
-                Ok(c) => c,
-                Err(code) => return code,
-            };
-            let opts = SitlOptions {
-                config: loaded,
-                config_path: config,
-                autopilot,
-                seconds,
-                gcs,
-                plain,
-            };
-            match rt.block_on(simulation::run(opts)) {
-                Ok(_) => ExitCode::SUCCESS,
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    ExitCode::FAILURE
+            #[cfg(feature = "sitl")]
+            {
+                let loaded = match config.as_ref().map(|p| load(p)).transpose() {
+                    Ok(c) => c,
+                    Err(code) => return code,
+                };
+                let opts = SitlOptions {
+                    config: loaded,
+                    config_path: config,
+                    autopilot,
+                    seconds,
+                    gcs,
+                    plain,
+                };
+                match rt.block_on(simulation::run(opts)) {
+                    Ok(_) => ExitCode::SUCCESS,
+                    Err(e) => {
+                        eprintln!("error: {e}");
+                        ExitCode::FAILURE
+                    }
                 }
+            }
+            #[cfg(not(feature = "sitl"))]
+            {
+                let _ = (config, autopilot, seconds, gcs, plain);
+                eprintln!(
+                    "error: this build of lj9da-bridge has no simulator (the flight binary, as \
+                     packaged, holds only the flight code). Run `sitl` from a clone of the \
+                     repository: cargo run --release -- sitl"
+                );
+                ExitCode::FAILURE
             }
         }
         Command::Ports {

@@ -372,7 +372,7 @@ fn threads_of(pid: u32) -> Vec<(String, u32, u32)> {
 #[test]
 fn the_mavlink_loop_and_the_bus_threads_run_real_time_and_nothing_else_does() {
     // Whether this machine grants real-time scheduling to the test (and so to the bridge).
-    let granted = std::thread::spawn(|| lj9da_sim::realtime::request_fifo(1).is_ok())
+    let granted = std::thread::spawn(|| lj9da_realtime::request_fifo(1).is_ok())
         .join()
         .unwrap();
     let mut bridge = Service::start("service-realtime", &[]);

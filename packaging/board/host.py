@@ -857,7 +857,7 @@ class Board:
             self.measure_hang("usb", self.args.hang_after, runs)
         else:
             r.check("recovery after a hung bus thread", None,
-                    "NOT RUN: " + ("the binary has no LJ9DA_TEST_HANG_BUS switch" if not hang_switch
+                    "NOT RUN: " + ("the binary has no LJ9DA_TEST_HANG_BUS switch (a package built with LJ9DA_PACKAGE_FEATURES=fault-switch has)" if not hang_switch
                                    else "the unit has no watchdog"))
 
     def kill(self, signal):

@@ -10,9 +10,8 @@
 //! - [`servo`]: one servo — memory map, RAM/flash, force, motion, current, heat — pure, handed `now`;
 //! - [`bus`]: [`BusModel`], the line and the servos on it — wire time, bit rates, half-duplex collisions,
 //!   echo, reply faults — pure, handed `now` (tests drive it with virtual time);
-//! - [`runtime`]: [`SimBus`], a thread serving a pty or TCP in real time, and [`SimHandle`];
-//! - [`realtime`]: the scheduling a thread that must wake on time asks for (SCHED_FIFO, or a
-//!   short time slice), shared with the bridge's bus threads.
+//! - [`runtime`]: [`SimBus`], a thread serving a pty or TCP in real time (at real-time priority
+//!   where granted, by `lj9da-realtime`, which the bridge's bus threads use too), and [`SimHandle`].
 //!
 //! API notes (relative to the shape first agreed with the bridge):
 //! - Handle methods that address a servo take its *current* ID (register 4); if no servo has that ID now,
@@ -49,7 +48,6 @@ pub mod config;
 pub mod events;
 pub mod fault;
 pub mod protocol;
-pub mod realtime;
 pub mod runtime;
 pub mod servo;
 

@@ -53,7 +53,7 @@ use std::io::{Read, Write};
 use std::os::fd::{AsFd, AsRawFd, FromRawFd, IntoRawFd};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, watch};
 use tokio_serial::{DataBits, FlowControl, Parity, StopBits};
@@ -77,7 +77,7 @@ pub const REALTIME_PRIORITY: i32 = 10;
 /// never holds a core. Refused without CAP_SYS_NICE or an RLIMIT_RTPRIO of at least the
 /// priority (`lj9da-bridge deploy systemd` grants both).
 fn request_realtime() -> std::io::Result<()> {
-    lj9da_sim::realtime::request_fifo(REALTIME_PRIORITY)
+    lj9da_realtime::request_fifo(REALTIME_PRIORITY)
 }
 
 /// Say once per process, at warning level, that the bus threads run without real-time
@@ -129,31 +129,6 @@ pub fn lock_memory() {
     }
 }
 
-/// The reply allowance of a bus whose port is a pseudo-terminal.
-pub const SIMULATED_TURNAROUND: Duration = Duration::from_millis(20);
-
-/// A port that is a pseudo-terminal leads to simulated servos, which cannot keep time on a
-/// busy computer: their replies cross the pseudo-terminal through a kernel worker thread that
-/// runs at normal priority, and, where real-time scheduling is refused, their own thread waits
-/// behind every other program. With the allowance of a real adapter the bridge would report
-/// them lost or their replies bad when nothing is wrong; such a bus gets
-/// [`SIMULATED_TURNAROUND`] (it costs time only when a reply really is missing), said once.
-fn widen_allowance_for_simulated_servos(mut cfg: BusConfig, port: &Path) -> BusConfig {
-    let pty = std::fs::canonicalize(port).is_ok_and(|p| p.starts_with("/dev/pts"));
-    if pty && cfg.turnaround < SIMULATED_TURNAROUND {
-        tracing::info!(
-            bus = %cfg.name,
-            "{} is a pseudo-terminal (simulated servos, whose replies a busy computer passes on \
-             late): reply allowance {} ms instead of {} ms",
-            port.display(),
-            SIMULATED_TURNAROUND.as_millis(),
-            cfg.turnaround.as_secs_f64() * 1e3
-        );
-        cfg.turnaround = SIMULATED_TURNAROUND;
-    }
-    cfg
-}
-
 /// The time slice the bus thread asks the scheduler for (the shortest Linux grants).
 const SCHED_SLICE: Duration = Duration::from_micros(100);
 
@@ -164,8 +139,7 @@ const SCHED_SLICE: Duration = Duration::from_micros(100);
 /// and has tens of µs of work. Older kernels refuse it; nothing else changes. The thread keeps
 /// its nice value (which `sched_setattr` sets too).
 fn request_short_slice() -> std::io::Result<()> {
-    use lj9da_sim::realtime;
-    realtime::request_slice(SCHED_SLICE, realtime::nice()?)
+    lj9da_realtime::request_slice(SCHED_SLICE, lj9da_realtime::nice()?)
 }
 
 /// A wake-up this long after the instant slept until is counted as late
@@ -641,7 +615,6 @@ pub fn spawn_bus(cfg: BusConfig, port: PathBuf) -> BusHandle {
 /// the packets due were written, before the status is sent to watchers). It sees every
 /// telemetry sample, which a [`watch`] receiver cannot promise; it must be quick.
 pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver) -> BusHandle {
-    let cfg = widen_allowance_for_simulated_servos(cfg, &port);
     let name = cfg.name.clone();
     let rs485 = cfg.rs485;
     let master = BusMaster::new(cfg, Instant::now());
@@ -758,50 +731,17 @@ struct Driver {
     events: broadcast::Sender<BusEvent>,
     finished: watch::Sender<bool>,
     published_at: Instant,
-    /// When the thread started (for [`HANG_SWITCH`]).
+    /// When the thread started (for the fault switch of test builds).
+    #[cfg_attr(not(feature = "fault-switch"), allow(dead_code))]
     started: Instant,
 }
 
-/// The environment variable of the test-only fault switch: `<bus name>:<seconds>` makes that
-/// bus's thread hang (without the core) once it has run that long, so that a test can see the
-/// service's watchdog notice a stuck bus thread. Nothing else reads it; a bridge it is set for
-/// says so in its log at the start of that bus.
-pub const HANG_SWITCH: &str = "LJ9DA_TEST_HANG_BUS";
-
-/// The bus named by [`HANG_SWITCH`] and when its thread hangs (`None`: unset or unreadable).
-fn hang_switch() -> Option<&'static (String, Duration)> {
-    static SWITCH: OnceLock<Option<(String, Duration)>> = OnceLock::new();
-    SWITCH
-        .get_or_init(|| {
-            let value = std::env::var(HANG_SWITCH).ok()?;
-            let parsed = value.rsplit_once(':').and_then(|(bus, secs)| {
-                let secs = secs
-                    .trim()
-                    .parse::<f64>()
-                    .ok()
-                    .filter(|s| s.is_finite() && *s >= 0.0)?;
-                Some((bus.to_string(), Duration::from_secs_f64(secs)))
-            });
-            if parsed.is_none() {
-                tracing::warn!("{HANG_SWITCH}={value:?} ignored: expected <bus name>:<seconds>");
-            }
-            parsed
-        })
-        .as_ref()
-}
-
 impl Driver {
-    /// One turn of the thread's loops: counted for [`BusHandle::turns`]; the place where the
-    /// thread hangs when [`HANG_SWITCH`] asks it to.
+    /// One turn of the thread's loops: counted for [`BusHandle::turns`]. In a test build, the
+    /// place where the thread hangs when the fault switch asks it to.
     fn turn(&self) {
-        if let Some((_, after)) = hang_switch().filter(|(bus, _)| *bus == self.name)
-            && self.started.elapsed() >= *after
-        {
-            tracing::error!(bus = %self.name, "bus thread hangs now, as {HANG_SWITCH} asks");
-            loop {
-                std::thread::park();
-            }
-        }
+        #[cfg(feature = "fault-switch")]
+        super::fault_switch::hang_if_asked(&self.name, self.started);
         self.shared.turns.fetch_add(1, Ordering::Relaxed);
     }
 
@@ -829,9 +769,8 @@ impl Driver {
             let cfg = core.master.config();
             (cfg.baud, cfg.port_reopen_backoff)
         };
-        if let Some((_, after)) = hang_switch().filter(|(bus, _)| *bus == self.name) {
-            tracing::warn!(bus = %self.name, "test fault switch {HANG_SWITCH}: this bus thread will hang after {after:?}");
-        }
+        #[cfg(feature = "fault-switch")]
+        super::fault_switch::announce(&self.name);
         let mut backoff = Duration::ZERO;
         loop {
             let opened = open_port(&self.path, baud, self.rs485.as_mut());

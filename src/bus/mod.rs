@@ -78,6 +78,8 @@
 pub mod config;
 pub mod driver;
 pub mod event;
+#[cfg(feature = "fault-switch")]
+pub mod fault_switch;
 pub mod goal;
 pub mod master;
 pub mod quality;

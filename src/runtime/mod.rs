@@ -493,7 +493,7 @@ pub const LOOP_PRIORITY: i32 = crate::bus::driver::REALTIME_PRIORITY - 1;
 /// messages. Threads it starts afterwards run as normal ones. Refused without the grant the bus
 /// threads need too (their warning says which); then only said at debug level.
 fn request_realtime_loop() {
-    match lj9da_sim::realtime::request_fifo(LOOP_PRIORITY) {
+    match lj9da_realtime::request_fifo(LOOP_PRIORITY) {
         Ok(()) => tracing::debug!("the MAVLink loop runs at SCHED_FIFO {LOOP_PRIORITY}"),
         Err(e) => tracing::debug!("the MAVLink loop runs without real-time scheduling: {e}"),
     }
@@ -974,6 +974,26 @@ async fn sleep_until(deadline: Option<tokio::time::Instant>) {
     match deadline {
         Some(at) => tokio::time::sleep_until(at).await,
         None => std::future::pending().await,
+    }
+}
+
+/// Ctrl-C or SIGTERM.
+pub async fn shutdown_signal() {
+    #[cfg(unix)]
+    {
+        let mut term =
+            match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+                Ok(t) => t,
+                Err(_) => return std::future::pending().await,
+            };
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            _ = term.recv() => {}
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
     }
 }
 

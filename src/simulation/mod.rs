@@ -55,10 +55,17 @@ fn free_udp_port() -> std::io::Result<u16> {
     Ok(UdpSocket::bind("127.0.0.1:0")?.local_addr()?.port())
 }
 
-/// Run the chain until Ctrl-C (or `seconds`). Returns the bridge's last view for a summary.
+/// The reply allowance `sitl` gives a bus whose mapping sets none (`turnaround_ms`), in ms.
+/// Simulated servos cannot keep a real adapter's time on a busy computer: their replies cross
+/// the pseudo-terminal through a kernel worker thread at normal priority, and, where real-time
+/// scheduling is refused, their own thread waits behind every other program. At the bus
+/// master's own 2 ms the bridge would report them lost, or their replies bad, when nothing is
+/// wrong; a wider allowance costs time only when a reply really is missing. `run` takes what the
+/// mapping says, whatever the port: this is `sitl`'s own choice, said in its log.
+pub const SIMULATED_TURNAROUND_MS: f32 = 20.0;
+
 /// Say once when the simulated servos run without real-time scheduling: beside busy programs
-/// they then answer late (the bridge allows for it on pseudo-terminals, see
-/// `bus::driver::SIMULATED_TURNAROUND`).
+/// they then answer late.
 async fn tell_realtime(sims: &[SimBus]) {
     let mut refused = false;
     for sim in sims {
@@ -80,10 +87,20 @@ async fn tell_realtime(sims: &[SimBus]) {
     }
 }
 
+/// Run the chain until Ctrl-C (or `seconds`). Returns the bridge's last view for a summary.
 pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
     let mut cfg = opts.config.clone().unwrap_or_else(Config::default_sitl);
     let mut sims = Vec::new();
     let mut ports = HashMap::new();
+    for bus in cfg.buses.iter_mut().filter(|b| b.turnaround_ms.is_none()) {
+        bus.turnaround_ms = Some(SIMULATED_TURNAROUND_MS);
+        tracing::info!(
+            bus = %bus.name,
+            "simulated servos, whose replies a busy computer passes on late: reply allowance \
+             {SIMULATED_TURNAROUND_MS} ms (a real adapter's is 2 ms; turnaround_ms in the \
+             mapping sets it)"
+        );
+    }
     for bus in &cfg.buses {
         let ids: Vec<u8> = cfg.servos_on(&bus.name).map(|s| s.id.get()).collect();
         let sim = SimBus::spawn_pty(SimConfig {
@@ -183,7 +200,7 @@ pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
                 None => std::future::pending().await,
             }
         } => {}
-        _ = shutdown_signal() => {}
+        _ = runtime::shutdown_signal() => {}
         // `q` in the live view.
         _ = &mut table_task, if !plain => view_ended = true,
     }
@@ -205,25 +222,5 @@ pub async fn run(opts: SitlOptions) -> Result<BridgeView, SitlError> {
     match result {
         Ok(r) => r.map(|()| last).map_err(SitlError::from),
         Err(join) => panic!("bridge task failed: {join}"),
-    }
-}
-
-/// Ctrl-C or SIGTERM.
-pub async fn shutdown_signal() {
-    #[cfg(unix)]
-    {
-        let mut term =
-            match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-                Ok(t) => t,
-                Err(_) => return std::future::pending().await,
-            };
-        tokio::select! {
-            _ = tokio::signal::ctrl_c() => {}
-            _ = term.recv() => {}
-        }
-    }
-    #[cfg(not(unix))]
-    {
-        let _ = tokio::signal::ctrl_c().await;
     }
 }

@@ -478,7 +478,7 @@ pub const REALTIME_PRIORITY: i32 = 10;
 /// CAP_SYS_NICE, no RLIMIT_RTPRIO). The thread sleeps between bytes and spins only within
 /// 100 µs of one, so it never holds a core for long.
 fn request_realtime() -> bool {
-    let result = crate::realtime::request_fifo(REALTIME_PRIORITY);
+    let result = lj9da_realtime::request_fifo(REALTIME_PRIORITY);
     if let Err(error) = &result {
         tracing::debug!(%error, "no real-time scheduling for the simulated bus");
     }
@@ -490,7 +490,7 @@ fn request_realtime() -> bool {
 /// Unprivileged; older kernels refuse it and nothing else changes. The thread's nice value is
 /// set to 0 with it.
 fn request_short_slice() {
-    if let Err(error) = crate::realtime::request_slice(Duration::from_micros(100), 0) {
+    if let Err(error) = lj9da_realtime::request_slice(Duration::from_micros(100), 0) {
         tracing::debug!(%error, "scheduler slice stays at its default");
     }
 }

@@ -310,11 +310,11 @@ fn a_burst_of_late_messages_then_the_usual_ticks() {
 #[test]
 fn a_servo_with_a_fifth_of_its_replies_garbled_keeps_most_of_its_good_replies() {
     // A garbled reply frees the bus when it has ended, as a clean one does: the servo loses
-    // the garbled replies, not the time of a reply allowance after each (20 ms on a
-    // pseudo-terminal, where the simulated servos are).
+    // the garbled replies, not the time of a reply allowance after each (20 ms, as `sitl`
+    // gives its simulated servos).
     let good_replies = |share: f64| {
         let mut cfg = config(&[1, 2, 3, 4]);
-        cfg.turnaround = crate::bus::driver::SIMULATED_TURNAROUND;
+        cfg.turnaround = Duration::from_millis(20);
         let (mut rig, mut messages) = warmed_up_on(cfg);
         rig.servo(1).garble_share = share;
         let from = after(&messages);
