@@ -7,6 +7,8 @@
 //!   a `udpin` link replies: the signed peer keeps hearing the bridge, the stranger hears nothing.
 //! - The bridge's own frames are numbered per link without gaps; the autopilot's HEARTBEAT
 //!   relayed to the ground station keeps the autopilot's sequence numbers.
+//! - A second system streaming to the autopilot's `udpin` port takes none of the autopilot's
+//!   share: the bridge sends each message to both.
 //! - A burst of 1 000 PARAM_SETs rewrites the mapping file a bounded number of times, and the
 //!   latest value is the one kept.
 
@@ -250,7 +252,22 @@ async fn a_signed_frame_replayed_on_the_ground_station_link_is_dropped_and_moves
             v.signing_drops.get(1).is_some_and(|d| d.old_timestamp == 1)
         })
         .await;
-    tokio::time::sleep(Duration::from_millis(300)).await;
+    // A barrier, not a pause: a signed ground station's request on the same link, answered
+    // only once the bridge has handled everything that link passed on before it (one reader,
+    // one queue, in order). Had the replay been passed on, it would have moved the servo first.
+    let mut gcs = Peer::new((255, 190), true).await;
+    let read = MavMessage::PARAM_REQUEST_READ(PARAM_REQUEST_READ_DATA {
+        param_index: -1,
+        target_system: 1,
+        target_component: BRIDGE.1,
+        param_id: "S1_PWM_MIN".into(),
+    });
+    gcs.send(gcs_port, &read).await;
+    gcs.wait_for("the answer to the ground station's request", |h| {
+        h.iter()
+            .any(|(_, m, _)| matches!(m, MavMessage::PARAM_VALUE(_)))
+    })
+    .await;
     assert_eq!(goal(&chain).map(|g| (g * 100.0).round()), Some(0.0));
     assert_eq!(chain.view.borrow().signing_drops[0].total(), 0);
     chain.stop().await;
@@ -376,6 +393,76 @@ async fn own_frames_count_without_gaps_and_the_relayed_heartbeat_keeps_its_numbe
         .map(|(h, _, _)| h.sequence)
         .collect();
     assert_eq!(gaps(&to_ap), 0, "to the autopilot: {to_ap:?}");
+    chain.stop().await;
+}
+
+/// A ground station (or a joystick's MANUAL_CONTROL forwarded by a router) streaming at 25 Hz
+/// to the autopilot's `udpin` port takes nothing of what the autopilot hears: the bridge sends
+/// each of its messages to both. Judged by the link's own numbering: the autopilot hears every
+/// frame the link numbered while the other system streamed (a gap is a frame that went only to
+/// the other), and the other hears the bridge too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_system_on_the_autopilots_port_takes_none_of_its_messages() {
+    let chain = Chain::start_opts(&mapping(false, "two-peers"), ChainOptions::default()).await;
+    let port = chain.autopilot_port;
+    let mut ap = Peer::new(AP, false).await;
+    ap.announce(port, &chain).await;
+    ap.wait_for("the bridge's HEARTBEAT", |h| {
+        h.iter()
+            .any(|(hd, m, _)| hd.component_id == BRIDGE.1 && matches!(m, MavMessage::HEARTBEAT(_)))
+    })
+    .await;
+    let mut gcs = Peer::new((255, 190), false).await;
+    let joystick = MavMessage::MANUAL_CONTROL(mavlink::dialects::common::MANUAL_CONTROL_DATA {
+        target: 1,
+        ..Default::default()
+    });
+    let before = ap.heard_from_bridge().len();
+    // 3 s: the autopilot's outputs at 20 Hz, the ground station's stream at 25 Hz, interleaved
+    // as they come from two systems.
+    let start = Instant::now();
+    let (mut next_ap, mut next_gcs) = (start, start);
+    while start.elapsed() < Duration::from_secs(3) {
+        let now = Instant::now();
+        if now >= next_ap {
+            ap.send(port, &outputs(&[1520])).await;
+            next_ap += Duration::from_millis(50);
+        }
+        if now >= next_gcs {
+            gcs.send(port, &joystick).await;
+            next_gcs += Duration::from_millis(40);
+        }
+        tokio::time::sleep_until(next_ap.min(next_gcs).into()).await;
+    }
+    // What the link numbered last in those 3 s has reached both.
+    let last = gcs
+        .heard_from_bridge()
+        .last()
+        .map(|(h, _, _)| h.sequence)
+        .expect("the ground station heard the bridge");
+    ap.wait_for("the last frame the ground station heard", |h| {
+        h.iter()
+            .any(|(hd, _, _)| hd.component_id == BRIDGE.1 && hd.sequence == last)
+    })
+    .await;
+    let to_ap: Vec<u8> = ap.heard_from_bridge()[before..]
+        .iter()
+        .map(|(h, _, _)| h.sequence)
+        .collect();
+    let to_gcs = gcs.heard_from_bridge();
+    println!(
+        "in 3 s: the autopilot heard {} of the bridge's frames, the ground station {}",
+        to_ap.len(),
+        to_gcs.len()
+    );
+    assert!(to_ap.len() >= 5, "{to_ap:?}");
+    assert_eq!(gaps(&to_ap), 0, "frames the autopilot missed: {to_ap:?}");
+    assert!(
+        to_gcs
+            .iter()
+            .any(|(_, m, _)| matches!(m, MavMessage::HEARTBEAT(_))),
+        "the ground station heard no HEARTBEAT of the bridge's"
+    );
     chain.stop().await;
 }
 

@@ -6,6 +6,7 @@
 //!   requests, telemetry schedule).
 //! - [`param_server`]: the parameter protocol (list, read, set) served by the bridge's component.
 //! - [`params`]: the MAVLink parameters, and the mapping-file edit each change makes.
+//! - [`peers`]: who a listening UDP link answers: every system heard on it recently.
 //! - [`schedule`]: when each telemetry carrier goes out, and values only on change.
 //! - [`telemetry`]: HEARTBEAT, NAMED_VALUE_FLOAT, ESC_INFO/ESC_STATUS and STATUSTEXT builders.
 //! - [`statustext`]: event texts, severities and the flood guard.
@@ -20,6 +21,7 @@ pub mod outbox;
 pub mod outputs;
 pub mod param_server;
 pub mod params;
+pub mod peers;
 pub mod rate;
 pub mod schedule;
 pub mod signing;

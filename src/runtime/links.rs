@@ -8,6 +8,7 @@
 use crate::config::Config;
 use crate::mavlink::LinkId;
 use crate::mavlink::outbox::{Outbox, Queued};
+use crate::mavlink::peers::{MAX_PEERS, PEER_TIMEOUT, PeerChange, Peers};
 use crate::mavlink::signing::{self, Incoming, Signed, Signing, TimestampFile};
 use ::mavlink::dialects::common::MavMessage;
 use ::mavlink::error::{MessageReadError, MessageWriteError};
@@ -174,11 +175,13 @@ fn connection_gone(e: &std::io::Error) -> bool {
 
 /// A `udpin` link. The `mavlink` crate's replies to whoever sent the last datagram, a dropped
 /// one included: with signing on, a stranger's unsigned datagram would steer where the
-/// bridge's signed messages go. Here the reply address changes only with a datagram that held
-/// a frame the bridge accepted (with signing on, a correctly signed fresh one).
+/// bridge's signed messages go, and with two systems on the port each gets part of them.
+/// Here the bridge's messages go to every peer heard recently ([`Peers`]), and a peer is heard
+/// only by a datagram that held a frame the bridge accepted (with signing on, a correctly
+/// signed fresh one).
 pub struct UdpIn {
     socket: UdpSocket,
-    peer: Mutex<Option<SocketAddr>>,
+    peers: Mutex<Peers>,
     /// Datagrams the kernel dropped because the socket's receive buffer was full (the bridge
     /// did not read in time), as `SO_RXQ_OVFL` counts them: the kernel tells the count with the
     /// next datagram it queues after a drop. `None` where it cannot count.
@@ -201,7 +204,7 @@ impl UdpIn {
         };
         Ok(UdpIn {
             socket,
-            peer: Mutex::new(None),
+            peers: Mutex::new(Peers::default()),
             lost,
             address: address.to_string(),
         })
@@ -257,13 +260,46 @@ impl UdpIn {
         Ok((n, from))
     }
 
-    /// Where replies go now (`None`: nobody has spoken yet).
-    pub fn peer(&self) -> Option<SocketAddr> {
-        *self.peer.lock().unwrap_or_else(PoisonError::into_inner)
+    fn peers(&self) -> MutexGuard<'_, Peers> {
+        self.peers.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
-    fn set_peer(&self, from: SocketAddr) {
-        *self.peer.lock().unwrap_or_else(PoisonError::into_inner) = Some(from);
+    /// `from` sent a frame the bridge accepted.
+    fn heard(&self, from: SocketAddr) {
+        let changes = self.peers().heard(from, Instant::now());
+        self.tell(&changes);
+    }
+
+    /// Where a message sent now goes (peers silent for too long are dropped first).
+    fn addresses(&self) -> Vec<SocketAddr> {
+        let now = Instant::now();
+        let mut peers = self.peers();
+        let left = peers.expire(now);
+        let addresses = peers.addresses(now).collect();
+        drop(peers);
+        self.tell(&left);
+        addresses
+    }
+
+    fn tell(&self, changes: &[PeerChange]) {
+        for change in changes {
+            match change {
+                PeerChange::Joined(peer) => tracing::info!(
+                    address = %self.address,
+                    "{peer} heard: the bridge's messages on this link go to it too"
+                ),
+                PeerChange::Left(peer) => tracing::info!(
+                    address = %self.address,
+                    "{peer} silent for {} s: the bridge's messages no longer go to it",
+                    PEER_TIMEOUT.as_secs()
+                ),
+                PeerChange::Replaced(peer) => tracing::warn!(
+                    address = %self.address,
+                    "{peer} dropped to make room for a new peer: the link answers at most \
+                     {MAX_PEERS}"
+                ),
+            }
+        }
     }
 }
 
@@ -326,17 +362,28 @@ impl Link {
     /// nowhere to send).
     fn can_send(&self) -> bool {
         match self {
-            Link::UdpIn(udp) => udp.peer().is_some(),
+            Link::UdpIn(udp) => udp.peers().any(Instant::now()),
             Link::Crate(link) => link.open.borrow().is_some(),
         }
     }
 
     async fn send(&self, frame: &MAVLinkMessageRaw) -> Result<usize, MessageWriteError> {
         match self {
-            Link::UdpIn(udp) => match udp.peer() {
-                Some(peer) => Ok(udp.socket.send_to(raw_bytes(frame), peer).await?),
-                None => Ok(0),
-            },
+            Link::UdpIn(udp) => {
+                // One peer's error (an ICMP unreachable from a gone ground station) holds up
+                // none of the others.
+                let (mut sent, mut failed) = (0, None);
+                for peer in udp.addresses() {
+                    match udp.socket.send_to(raw_bytes(frame), peer).await {
+                        Ok(n) => sent += n,
+                        Err(e) => failed = Some(e),
+                    }
+                }
+                match failed {
+                    Some(e) if sent == 0 => Err(e.into()),
+                    _ => Ok(sent),
+                }
+            }
             Link::Crate(link) => {
                 let Some(conn) = link.open.borrow().clone() else {
                     return Ok(0);
@@ -496,8 +543,8 @@ fn judge(
 }
 
 /// A task that reads `link` and hands each message, with the link's id, to `to_core`; it ends
-/// when the core is gone. A `udpin` link replies, from then on, to where the latest datagram
-/// with an accepted frame came from.
+/// when the core is gone. A `udpin` link sends, from then on, to every address a datagram with
+/// an accepted frame came from recently.
 pub fn spawn_reader(
     link: Link,
     link_id: LinkId,
@@ -521,7 +568,7 @@ pub fn spawn_reader(
                     continue;
                 };
                 if let (Link::UdpIn(udp), Some(from)) = (&link, from) {
-                    udp.set_peer(from);
+                    udp.heard(from);
                 }
                 if let Some((header, msg)) = accepted
                     && to_core.send((link_id, header, msg)).await.is_err()
