@@ -272,6 +272,24 @@ impl BridgeCore {
         self.rate.received_hz()
     }
 
+    /// Whether [`BridgeCore::handle_message`] acts on a message of this kind (from anyone);
+    /// the others it drops at once. The links' readers drop them before they reach the loop
+    /// (see [`super::admission`]).
+    pub fn handles(msg: &MavMessage) -> bool {
+        matches!(
+            msg,
+            MavMessage::HEARTBEAT(_)
+                | MavMessage::COMMAND_LONG(_)
+                | MavMessage::COMMAND_INT(_)
+                | MavMessage::PARAM_REQUEST_LIST(_)
+                | MavMessage::PARAM_REQUEST_READ(_)
+                | MavMessage::PARAM_SET(_)
+                | MavMessage::COMMAND_ACK(_)
+                | MavMessage::SERVO_OUTPUT_RAW(_)
+                | MavMessage::ACTUATOR_OUTPUT_STATUS(_)
+        )
+    }
+
     /// A message arrived on `link`.
     pub fn handle_message(
         &mut self,

@@ -1,6 +1,8 @@
 //! The MAVLink side of the bridge: autopilot outputs in, servo health out.
 //!
 //! - [`outputs`]: SERVO_OUTPUT_RAW / ACTUATOR_OUTPUT_STATUS as channel values.
+//! - [`admission`]: which received messages reach the loop: the kinds the core acts on, and a
+//!   budget for every system but the autopilot.
 //! - [`commands`]: COMMAND_LONG / COMMAND_INT in one form, and which are the bridge's.
 //! - [`core`]: the sans-IO bridge logic (autopilot, mapping, commands, failsafe, stream
 //!   requests, telemetry schedule).
@@ -14,6 +16,7 @@
 //! - [`signing`]: MAVLink 2 signing: incoming messages checked and counted, outgoing ones
 //!   signed, timestamps that survive a restart.
 
+pub mod admission;
 pub mod commands;
 pub mod core;
 pub mod health;

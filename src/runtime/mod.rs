@@ -13,6 +13,7 @@
 
 mod links;
 pub mod service;
+mod udp;
 
 use crate::bus::{
     BusConfig, BusEvent, BusHandle, BusStatus, Health, ServoSetup, ShutdownForce, spawn_bus,
@@ -31,7 +32,7 @@ use crate::record::{RecordHandle, RecordLimits, RecordServo, Recorder, StatusFee
 use crate::serial::rs485::Rs485Mode;
 use ::mavlink::MavHeader;
 use ::mavlink::dialects::common::MavMessage;
-use links::{Link, LinkWriter, SharedSigning};
+use links::{KnownAutopilot, Link, LinkThread, LinkWriter, SharedSigning};
 use service::{Verdict, Watchdog};
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -68,6 +69,8 @@ pub enum RunError {
     },
     #[error(transparent)]
     Signing(#[from] signing::TimestampFileError),
+    #[error("cannot start the thread of the MAVLink links: {0}")]
+    LinkThread(#[source] std::io::Error),
 }
 
 /// One servo as the live table shows it.
@@ -446,6 +449,10 @@ pub async fn run(
 /// A running bridge: the core, its buses and links, and the channels that feed its loop.
 struct Bridge {
     cfg: Config,
+    /// Where the links' sockets are read and written (dropped last: it ends their tasks).
+    link_thread: LinkThread,
+    /// The autopilot, for the readers' admission of messages.
+    known_autopilot: KnownAutopilot,
     core: BridgeCore,
     buses: Buses,
     record: Option<RecordHandle>,
@@ -520,12 +527,26 @@ impl Bridge {
             .chain(&cfg.mavlink.gcs)
             .cloned()
             .collect();
+        // Sockets, parsing and signatures on a normal thread of their own; the loop (real-time
+        // in `run`) only takes what the readers accepted.
+        let link_thread = LinkThread::start().map_err(RunError::LinkThread)?;
         let mut links = Vec::with_capacity(addresses.len());
         for address in &addresses {
-            links.push(links::connect(address).await?);
+            let address = address.clone();
+            let connecting = link_thread
+                .handle()
+                .spawn(async move { links::connect(&address).await });
+            links.push(
+                connecting
+                    .await
+                    .expect("connecting a link does not panic")?,
+            );
         }
         tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links set up; waiting for the autopilot");
-        let signing = links::open_signing(&cfg, links.len(), record_dir.as_deref())?;
+        let signing = {
+            let _on_link_thread = link_thread.handle().enter();
+            links::open_signing(&cfg, links.len(), record_dir.as_deref())?
+        };
         let record = record_dir
             .filter(|_| cfg.record.enabled)
             .and_then(|dir| start_record(&cfg, &dir));
@@ -536,15 +557,21 @@ impl Bridge {
         let mut tasks = Vec::new();
         let mut writers = Vec::new();
         let link_list = links.clone();
-        for (link_id, (link, address)) in links.into_iter().zip(addresses).enumerate() {
-            writers.push(LinkWriter::spawn(link.clone(), link_id, signing.clone()));
-            tasks.push(links::spawn_reader(
-                link,
-                link_id,
-                address,
-                signing.clone(),
-                message_tx.clone(),
-            ));
+        let known_autopilot = KnownAutopilot::default();
+        known_autopilot.set(core.autopilot());
+        {
+            let _on_link_thread = link_thread.handle().enter();
+            for (link_id, (link, address)) in links.into_iter().zip(addresses).enumerate() {
+                writers.push(LinkWriter::spawn(link.clone(), link_id, signing.clone()));
+                tasks.push(links::spawn_reader(
+                    link,
+                    link_id,
+                    address,
+                    signing.clone(),
+                    known_autopilot.clone(),
+                    message_tx.clone(),
+                ));
+            }
         }
         let (event_tx, bus_events) = mpsc::unbounded_channel();
         for (i, bus) in buses.handles.iter().enumerate() {
@@ -559,6 +586,8 @@ impl Bridge {
         let (edits, edited) = spawn_mapping_writer(mapping);
         Ok(Bridge {
             cfg,
+            link_thread,
+            known_autopilot,
             core,
             buses,
             record,
@@ -689,6 +718,7 @@ impl Bridge {
                 self.collect_goals(&mut goals);
             }
             self.pass_param_sets();
+            self.known_autopilot.set(self.core.autopilot());
             for (handle, batches) in self.buses.handles.iter().zip(goals) {
                 if !batches.is_empty() {
                     handle.pass_goals(batches);
@@ -877,11 +907,12 @@ impl Bridge {
             outputs_received_hz: self.core.received_rates_hz(),
             buses: statuses,
             texts: self.texts.iter().cloned().collect(),
-            signing_drops: self
-                .signing
-                .as_ref()
-                .map(|s| s.lock().drops())
-                .unwrap_or_default(),
+            // Held by the links' thread this instant: the counts of the last view stand.
+            signing_drops: match self.signing.as_ref().map(SharedSigning::try_lock) {
+                None => Vec::new(),
+                Some(Some(signing)) => signing.drops(),
+                Some(None) => view.borrow().signing_drops.clone(),
+            },
             send_drops: self.writers.iter().map(LinkWriter::dropped).collect(),
             receive_drops: self.links.iter().map(Link::lost).collect(),
             mapping_writes: self.mapping_writes,
@@ -906,6 +937,8 @@ impl Bridge {
         if unsent > 0 {
             tracing::debug!("{unsent} MAVLink messages left unsent at the stop");
         }
+        drop(self.writers);
+        drop(self.link_thread);
         if let Some(r) = self.record {
             let path = r.path();
             let stats = r.finish();
