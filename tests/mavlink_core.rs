@@ -109,6 +109,46 @@ fn running(t0: Instant) -> BridgeCore {
     c
 }
 
+/// The links' readers drop every kind of message [`BridgeCore::handles`] leaves out (see
+/// `mavlink::admission`): each of them, from the autopilot on its link, changes nothing the
+/// core says or does.
+#[test]
+fn every_kind_the_readers_drop_is_one_the_core_ignores() {
+    use mavlink::Message;
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    messages(&mut c);
+    c.take_notes();
+    c.take_output_ticks();
+    let mut kinds = 0;
+    for id in 0..=u32::from(u16::MAX) {
+        let Some(message) = MavMessage::default_message_from_id(id) else {
+            continue;
+        };
+        if BridgeCore::handles(&message) {
+            continue;
+        }
+        kinds += 1;
+        c.handle_message(0, &header(AP), &message, t0);
+        assert_eq!(commands(&mut c), [], "{}", message.message_name());
+        let out = messages(&mut c);
+        assert!(
+            out.is_empty(),
+            "{}: {:?}",
+            message.message_name(),
+            out.first()
+        );
+        assert!(c.take_notes().is_empty(), "{}", message.message_name());
+        assert!(
+            c.take_output_ticks().is_empty(),
+            "{}",
+            message.message_name()
+        );
+        assert!(c.poll_param_set().is_none(), "{}", message.message_name());
+    }
+    assert!(kinds > 100, "{kinds} kinds tried");
+}
+
 #[test]
 fn the_autopilots_heartbeat_is_relayed_to_the_ground_station_link_under_its_own_ids() {
     // QGroundControl creates a vehicle only from an autopilot's HEARTBEAT: the `gcs` link
