@@ -473,7 +473,10 @@ mod tests {
         }
         stranger.send_to(&[0u8; 32], to).unwrap();
         udp.recv_from(&mut buf).await.unwrap();
-        assert!(udp.lost() > 0, "the flood overflowed the listening socket");
+        // (Not counted under qemu-user, which refuses SO_RXQ_OVFL.)
+        if udp.listening.lost.is_some() {
+            assert!(udp.lost() > 0, "the flood overflowed the listening socket");
+        }
     }
 
     #[tokio::test]
