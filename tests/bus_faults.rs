@@ -181,9 +181,25 @@ async fn a_port_that_disappears_is_reopened() {
     })
     .await;
     assert!(!bus.status().port_open);
-    // Goals keep being accepted while the port is away.
+    // Goals keep being accepted while the port is away, and the bus thread goes on trying the
+    // port: its turns (one after each attempt, and at least one every 100 ms between them)
+    // keep growing. A thread that stopped or hung would stand still.
+    let received = bus.status().counters.goals_received;
     bus.set_goal(id(1), Goal::Position(MmCenti(-130)));
-    tokio::time::sleep(Duration::from_millis(500)).await;
+    wait_status(&bus, "the goal taken while the port is away", |s| {
+        !s.port_open && s.counters.goals_received == received + 1
+    })
+    .await;
+    let turns = bus.turns();
+    let deadline = std::time::Instant::now() + PATIENCE;
+    while bus.turns() < turns + 3 {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the bus thread stopped turning with its port away: {} turns",
+            bus.turns()
+        );
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
     assert!(!bus.is_finished());
 
     sim.handle().reconnect_port();
@@ -232,17 +248,42 @@ async fn an_overheated_servo_is_reported_and_not_hammered_with_force_on() {
         }
         tokio::time::sleep(Duration::from_millis(25)).await;
     }
-    let force_writes_to_1 = packets
-        .try_iter()
-        .filter(|e| match e {
-            SimEvent::Packet(p) => match &p.packet {
-                HostPacket::Short(s) => s.id == 1 && s.address == 0x24,
-                HostPacket::Long(_) => false,
-            },
-            _ => false,
-        })
-        .count();
-    assert_eq!(force_writes_to_1, 0);
+    // Watched until servo 2's last goal has left and servo 1 has been polled twice after it:
+    // by then the bus master has handled every goal given above and been round its servos
+    // again, so a force-ON it meant to send servo 1 for any of them is on the line. (The first
+    // force write seen ends the watch: it fails the test.)
+    let deadline = std::time::Instant::now() + PATIENCE;
+    let (mut last_goal_sent, mut polls_after, mut force_writes_to_1) = (false, 0, 0);
+    while polls_after < 2 && force_writes_to_1 == 0 {
+        let event = packets
+            .recv_timeout(deadline.saturating_duration_since(std::time::Instant::now()))
+            .unwrap_or_else(|_| {
+                panic!("servo 1 not polled twice after the last goal (sent: {last_goal_sent})")
+            });
+        let SimEvent::Packet(p) = event else { continue };
+        match &p.packet {
+            HostPacket::Long(_) => last_goal_sent |= p.packet.goal_positions().contains(&(2, 195)),
+            HostPacket::Short(short) if short.id == 1 => {
+                if short.address == 0x24 {
+                    force_writes_to_1 += 1;
+                }
+                // A poll carries no data (a request, or count 1 with length 0).
+                let poll = match short.form() {
+                    ShortForm::Write { data, .. } => data.is_empty(),
+                    ShortForm::Request { .. } => true,
+                    _ => false,
+                };
+                if poll && last_goal_sent {
+                    polls_after += 1;
+                }
+            }
+            HostPacket::Short(_) => {}
+        }
+    }
+    assert_eq!(
+        force_writes_to_1, 0,
+        "force written to servo 1 after its temperature error"
+    );
     let st = bus.status();
     assert_eq!(st.servo(id(1)).unwrap().health, Health::TemperatureError);
     assert!(st.servo(id(1)).unwrap().flags.temperature_error());

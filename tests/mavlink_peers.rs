@@ -18,7 +18,7 @@ use common::mapping::Mapping;
 use common::peer::{heartbeat, outputs};
 use common::{Chain, ChainOptions, free_udp_port};
 use lj9da_bridge::mavlink::signing::{Signed, Signing, SigningKey};
-use lj9da_bridge::runtime::MAPPING_WRITE_SPACING;
+use lj9da_bridge::runtime::{BridgeView, MAPPING_WRITE_SPACING};
 use mavlink::dialects::common::{
     MavMessage, MavParamType, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA,
 };
@@ -483,6 +483,24 @@ async fn chain_with_mapping_file(name: &str) -> (Chain, PathBuf, Peer) {
     (chain, file, ap)
 }
 
+/// The burst of 1 000 PARAM_SETs: [`WINDOWS`] windows of [`WINDOW_SETS`] sets, one window every
+/// [`WINDOW_EVERY`].
+const WINDOWS: u16 = 10;
+const WINDOW_SETS: u16 = 100;
+const WINDOW_EVERY: Duration = Duration::from_millis(100);
+
+/// A view of the bridge made after this call: it holds whatever the bridge had done by then.
+async fn view_from_now(chain: &Chain) -> BridgeView {
+    let mut view = chain.view.clone();
+    view.mark_unchanged();
+    // The view is made again at least every 200 ms, whatever comes in.
+    tokio::time::timeout(Duration::from_secs(10), view.changed())
+        .await
+        .expect("a new view within 10 s")
+        .expect("the bridge runs");
+    view.borrow().clone()
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_burst_of_a_thousand_param_sets_writes_the_file_a_bounded_number_of_times() {
     let (chain, file, _ap) = chain_with_mapping_file("burst").await;
@@ -496,88 +514,102 @@ async fn a_burst_of_a_thousand_param_sets_writes_the_file_a_bounded_number_of_ti
             param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
         })
     };
-    // 1 000 sets as fast as the socket takes them, two parameters, ever-changing values.
-    let mut gcs = Peer::new((255, 190), false).await;
-    let burst_start = Instant::now();
-    for i in 0..500u16 {
-        let trim = 1500.0 + f32::from(i % 9);
-        gcs.send(port, &set("S1_PWM_TRIM", trim)).await;
-        gcs.send(port, &set("S1_PWM_MAX", 2100.0 + f32::from(i % 9)))
-            .await;
-    }
-    // The bridge takes messages in the order they came: its answer to a read sent after the
-    // burst says it has taken the whole burst in. (On a busy machine that is later than the
-    // last send; the writes are bounded over the time the bridge had the sets.) The read is
-    // sent again, as a ground station does, when the burst filled the socket's buffer and
-    // the kernel dropped it.
+    // Two parameters, a value never sent before in each set (a set of the value the file will
+    // hold anyway is no change): the trim 1 000–1 499 µs, the maximum 1 600–2 099 µs, always
+    // above the trim, which stays above the minimum (920 µs).
+    let trim = |i: u16| 1000.0 + f32::from(i);
+    let max = |i: u16| 1600.0 + f32::from(i);
     let read = MavMessage::PARAM_REQUEST_READ(PARAM_REQUEST_READ_DATA {
         param_index: -1,
         target_system: 1,
         target_component: BRIDGE.1,
         param_id: "S1_PWM_MIN".into(),
     });
-    let answered = |h: &[(MavHeader, MavMessage, bool)]| {
-        h.iter().any(|(_, m, _)| {
-            matches!(m, MavMessage::PARAM_VALUE(v) if v.param_id.to_str().is_ok_and(|id| id == "S1_PWM_MIN"))
-        })
+    let reads_answered = |gcs: &Peer| {
+        gcs.heard
+            .lock()
+            .unwrap()
+            .iter()
+            .filter(|(_, m, _)| {
+                matches!(m, MavMessage::PARAM_VALUE(v) if v.param_id.to_str().is_ok_and(|id| id == "S1_PWM_MIN"))
+            })
+            .count()
     };
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while !answered(&gcs.heard()) {
-        assert!(
-            Instant::now() < deadline,
-            "no answer to a read after the burst"
-        );
+    // Sent so that the kernel drops none of it: each window is 101 datagrams (its sets, then
+    // a read), half of what the bridge's socket buffer holds at the default 208 KiB, and the
+    // next window goes only once the bridge has answered the read that closed the one before
+    // (it reads a link in order: the answer says it took the whole window in). The windows
+    // are paced, one every 100 ms: the burst is planned to last 900 ms from the first window
+    // to the last.
+    let mut gcs = Peer::new((255, 190), false).await;
+    let start = tokio::time::Instant::now();
+    for window in 0..WINDOWS {
+        tokio::time::sleep_until(start + WINDOW_EVERY * u32::from(window)).await;
+        for k in 0..WINDOW_SETS / 2 {
+            let i = window * (WINDOW_SETS / 2) + k;
+            gcs.send(port, &set("S1_PWM_TRIM", trim(i))).await;
+            gcs.send(port, &set("S1_PWM_MAX", max(i))).await;
+        }
         gcs.send(port, &read).await;
-        tokio::time::sleep(Duration::from_millis(20)).await;
+        let closed = usize::from(window) + 1;
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while reads_answered(&gcs) < closed {
+            assert!(
+                Instant::now() < deadline,
+                "no answer to the read closing window {closed} (receive drops: {:?})",
+                chain.view.borrow().receive_drops
+            );
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
     }
-    let burst = burst_start.elapsed();
-    // The last values, as a ground station that heard no answer sends them again.
-    let (trim, max) = (
-        1500.0 + f32::from(499u16 % 9),
-        2100.0 + f32::from(499u16 % 9),
+    // Nothing was lost: the kernel counts what it drops and tells it with the next datagram
+    // it queues, here the read that closed the window.
+    let lost = view_from_now(&chain).await.receive_drops;
+    assert_eq!(
+        lost.first(),
+        Some(&0),
+        "datagrams of the burst dropped by the kernel (per link)"
     );
-    for _ in 0..5 {
-        tokio::time::sleep(Duration::from_millis(200)).await;
-        gcs.send(port, &set("S1_PWM_TRIM", trim)).await;
-        gcs.send(port, &set("S1_PWM_MAX", max)).await;
+    // The latest values are the ones kept: the answer to a set goes out once the file holds it.
+    let last = WINDOWS * (WINDOW_SETS / 2) - 1;
+    let (trim, max) = (trim(last), max(last));
+    for (name, value) in [("S1_PWM_TRIM", trim), ("S1_PWM_MAX", max)] {
+        gcs.wait_for(&format!("PARAM_VALUE of {name} = {value}"), |h| {
+            h.iter().any(|(_, m, _)| {
+                matches!(m, MavMessage::PARAM_VALUE(v) if v.param_value == value
+                    && v.param_id.to_str().unwrap_or("") == name)
+            })
+        })
+        .await;
     }
-    let holds = |text: &str| {
+    let text = std::fs::read_to_string(&file).unwrap();
+    assert!(
         text.contains(&format!("pwm_trim_us = {trim}"))
-            && text.contains(&format!("pwm_max_us = {max}"))
-    };
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while !holds(&std::fs::read_to_string(&file).unwrap()) {
-        assert!(
-            Instant::now() < deadline,
-            "the file never held the last values: {}",
-            std::fs::read_to_string(&file).unwrap()
-        );
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    tokio::time::sleep(Duration::from_millis(500)).await;
-    // One write under way when the burst starts, then at most one per parameter and per
-    // write spacing the burst lasts (until the bridge had taken it all in), one per
-    // parameter for what waits at its end, and one per parameter for the values sent again:
-    // a burst this fast overflows the socket's receive buffer (the kernel dropped 48–390 of
-    // the 1 000 datagrams in ten runs here), and when the burst's own last values were among
-    // them, the file holds earlier ones until the values sent again arrive.
-    let writes = chain.view.borrow().mapping_writes;
-    let spacings = (burst.as_secs_f64() / MAPPING_WRITE_SPACING.as_secs_f64()).ceil() as u64;
-    let bound = 1 + 2 * spacings + 2 + 2;
+            && text.contains(&format!("pwm_max_us = {max}")),
+        "the file does not hold the last values {trim} and {max}: {text}"
+    );
+    // Both last values are written: no set waits any more, the count of writes is final.
+    //
+    // The writer takes one change at a time, the next once the last is written, and starts a
+    // write at least MAPPING_WRITE_SPACING after the one before. So while the bridge takes the
+    // burst in (for a time D), it is handed at most 1 + ⌈D / spacing⌉ changes, and after it at
+    // most one per parameter still waiting (2). D is the planned 900 ms and a margin of
+    // 200 ms: on a loaded machine the last window may reach the bridge late (the sender's
+    // timer and the bridge's task each wait for a core).
+    let planned = WINDOW_EVERY * u32::from(WINDOWS - 1);
+    let margin = Duration::from_millis(200);
+    let spacings = (planned + margin)
+        .as_millis()
+        .div_ceil(MAPPING_WRITE_SPACING.as_millis()) as u64;
+    let bound = 1 + spacings + 2;
+    let writes = view_from_now(&chain).await.mapping_writes;
     assert!(
         (2..=bound).contains(&writes),
-        "{writes} writes of the mapping file for 1 000 sets on two parameters in {burst:?} (at most {bound})"
+        "{writes} writes of the mapping file for 1 000 sets on two parameters in {:?} \
+         (at most {bound})",
+        start.elapsed()
     );
-    eprintln!("{writes} writes for 1 000 sets in {burst:?}");
-    assert!(holds(&std::fs::read_to_string(&file).unwrap()));
-    // The ground station was answered with the values kept.
-    gcs.wait_for("PARAM_VALUE of the trim kept", |h| {
-        h.iter().any(|(_, m, _)| {
-            matches!(m, MavMessage::PARAM_VALUE(v) if v.param_value == trim
-                && v.param_id.to_str().unwrap_or("") == "S1_PWM_TRIM")
-        })
-    })
-    .await;
+    eprintln!("{writes} writes for 1 000 sets (at most {bound})");
     chain.stop().await;
     let _ = std::fs::remove_file(file);
 }

@@ -9,11 +9,73 @@ use bus_support::*;
 use lj9da_bridge::bus::spawn_bus;
 use lj9da_bridge::protocol::BaudRate;
 use lj9da_bridge::serial::rs485::Rs485Mode;
+use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use nix::pty::{OpenptyResult, openpty};
+use std::ffi::CString;
+use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
-use std::os::fd::AsRawFd;
+use std::os::fd::{AsFd, AsRawFd, FromRawFd};
+use std::os::unix::ffi::OsStrExt;
+use std::path::Path;
 use std::process::{Command, Stdio};
-use std::time::Duration;
+
+/// The closings of a file from now on, as the kernel tells them (inotify's `IN_CLOSE`): each
+/// attempt of a bus to open its port ends with one when the port is refused.
+struct Closings {
+    inotify: File,
+}
+
+impl Closings {
+    fn watch(path: &Path) -> Closings {
+        // SAFETY: a plain system call; the descriptor it returns is owned by the `File` below.
+        let fd = unsafe { libc::inotify_init1(libc::IN_CLOEXEC | libc::IN_NONBLOCK) };
+        assert!(fd >= 0, "inotify: {}", std::io::Error::last_os_error());
+        // SAFETY: `fd` is open and nothing else owns it.
+        let inotify = unsafe { File::from_raw_fd(fd) };
+        let name = CString::new(path.as_os_str().as_bytes()).expect("a path without NUL");
+        // SAFETY: `name` is a NUL-terminated string that outlives the call.
+        let watch = unsafe { libc::inotify_add_watch(fd, name.as_ptr(), libc::IN_CLOSE) };
+        assert!(
+            watch >= 0,
+            "inotify on {}: {}",
+            path.display(),
+            std::io::Error::last_os_error()
+        );
+        Closings { inotify }
+    }
+
+    /// Block until `count` closings were seen; fail after [`PATIENCE`].
+    fn wait(mut self, count: usize) {
+        let deadline = std::time::Instant::now() + PATIENCE;
+        let mut seen = 0;
+        let mut buffer = [0u8; 4096];
+        while seen < count {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            assert!(
+                !left.is_zero(),
+                "the port was closed {seen} times, not {count}"
+            );
+            let millis = u16::try_from(left.as_millis().max(1)).unwrap_or(u16::MAX);
+            let mut fds = [PollFd::new(self.inotify.as_fd(), PollFlags::POLLIN)];
+            let _ = poll(&mut fds, PollTimeout::from(millis));
+            let n = match self.inotify.read(&mut buffer) {
+                Ok(n) => n,
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => continue,
+                Err(e) => panic!("inotify read: {e}"),
+            };
+            // Each event: wd (4 bytes), mask (4), cookie (4), name length (4), the name.
+            let mut at = 0;
+            while at + 16 <= n {
+                let mask = u32::from_ne_bytes(buffer[at + 4..at + 8].try_into().unwrap());
+                let name_len = u32::from_ne_bytes(buffer[at + 12..at + 16].try_into().unwrap());
+                if mask & libc::IN_CLOSE != 0 {
+                    seen += 1;
+                }
+                at += 16 + name_len as usize;
+            }
+        }
+    }
+}
 
 /// A pseudo-terminal with no one on the other end, and its slave's path.
 fn bare_pty() -> (OpenptyResult, std::path::PathBuf) {
@@ -40,8 +102,12 @@ async fn a_refused_bus_stays_closed_and_silent_while_the_others_run() {
         |s| !s.port_open,
     )
     .await;
-    // It keeps trying (a port may come back), but never opens nor writes a byte.
-    tokio::time::sleep(Duration::from_millis(300)).await;
+    // It keeps trying (a port may come back), but never opens nor writes a byte: seen after
+    // two more attempts, each over once the bus has closed the port again.
+    let closings = Closings::watch(&refusing_path);
+    tokio::task::spawn_blocking(move || closings.wait(2))
+        .await
+        .expect("the watch of the port");
     let status = refused.status();
     assert!(!status.port_open, "{status:?}");
     assert_eq!(status.counters.bytes_sent, 0, "{status:?}");
@@ -54,7 +120,7 @@ async fn a_refused_bus_stays_closed_and_silent_while_the_others_run() {
         ),
     )
     .expect("non-blocking");
-    let mut master = std::fs::File::from(refusing.master);
+    let mut master = File::from(refusing.master);
     let mut buf = [0u8; 64];
     match master.read(&mut buf) {
         Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}

@@ -91,18 +91,42 @@ fn a_baud_change_works_end_to_end_when_the_host_follows() {
     let bus = SimBus::spawn_pty(SimConfig::default()).expect("spawn");
     let mut port = HostPort::open(&bus.path(), 115_200);
     assert_eq!(exchange(&mut port, &request(1, 0x01), 1), [0x07]);
+    // The simulator reads the line in order: the request right after the change comes to a
+    // servo at the new rate, which does not understand it at the old one.
     port.send(&SET_BAUD_38400);
-    std::thread::sleep(Duration::from_millis(20));
-    let at_old_rate = exchange(&mut port, &request(1, 0x09), 26);
-    assert!(
-        ReturnPacket::parse(&at_old_rate).is_none(),
-        "understood at the old rate: {at_old_rate:02X?}"
+    port.send(&request(1, 0x09));
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while bus.handle().stats().baud_mismatches == 0 {
+        assert!(
+            Instant::now() < deadline,
+            "the request at the old rate was never refused for its rate"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    // The host follows on the same port (the simulator has read both packets above at the old
+    // rate). The acknowledgement of a request at the new rate can only come after whatever the
+    // request at the old rate brought: nothing must come before it.
+    port.set_baud(38_400);
+    port.send(&request(1, 0x01));
+    let mut answer = Vec::new();
+    while !answer.contains(&0x07) {
+        let chunk = port.receive_bytes(1, deadline.saturating_duration_since(Instant::now()));
+        assert!(
+            !chunk.is_empty(),
+            "no acknowledgement at the new rate: {answer:02X?}"
+        );
+        answer.extend(chunk);
+    }
+    assert_eq!(
+        answer,
+        [0x07],
+        "bytes before the acknowledgement at the new rate"
     );
     drop(port);
     let mut port = HostPort::open(&bus.path(), 38_400);
     let reply = exchange(&mut port, &request(1, 0x09), 26);
     assert!(ReturnPacket::parse(&reply).is_some(), "{reply:02X?}");
-    assert!(bus.handle().stats().baud_mismatches >= 1);
+    assert_eq!(bus.handle().stats().baud_mismatches, 1);
 }
 
 #[test]

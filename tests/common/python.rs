@@ -1,7 +1,8 @@
 //! The Python with pymavlink (from PyPI) that the tests run as a third-party autopilot or
 //! ground station: `$LJ9DA_PYTHON` if set, else a virtual environment under the target directory,
-//! made with `pip install` of [`PYMAVLINK`] (pinned: the tests read what its parser decodes)
-//! by whichever test asks first.
+//! made with `pip install` of [`PYMAVLINK`] and the packages it needs, [`PYMAVLINK_NEEDS`]
+//! (all pinned: the tests read what its parser decodes, and a new release of a package it
+//! needs must not change a run) by whichever test asks first.
 //!
 //! Tests of one binary run on threads and the binaries of a workspace may run side by side, so
 //! the environment is made under an exclusive `flock` on a file beside it, and is used only once
@@ -19,6 +20,11 @@ use nix::fcntl::{Flock, FlockArg};
 /// names it).
 pub const PYMAVLINK: &str = "pymavlink==2.4.50";
 
+/// What pymavlink 2.4.50 needs (its `Requires`), at the versions pip chose for it: pinned too,
+/// so that pip installs the same packages whenever the environment is made. A new pin here
+/// also makes a new environment.
+pub const PYMAVLINK_NEEDS: [&str; 2] = ["fastcrc==0.5.0", "lxml==6.1.3"];
+
 pub fn python() -> PathBuf {
     if let Some(p) = std::env::var_os("LJ9DA_PYTHON") {
         return PathBuf::from(p);
@@ -31,7 +37,8 @@ pub fn python() -> PathBuf {
 fn make_venv(dir: &Path) -> PathBuf {
     let venv = dir.join("pymavlink-venv");
     let python = venv.join("bin/python");
-    let marker = venv.join(format!("lj9da-ready-{PYMAVLINK}"));
+    let pins = format!("{PYMAVLINK},{}", PYMAVLINK_NEEDS.join(","));
+    let marker = venv.join(format!("lj9da-ready-{pins}"));
     fs::create_dir_all(dir).expect("create the target's tmp directory");
     let lock = File::create(dir.join("pymavlink-venv.lock")).expect("create the venv lock file");
     // Held until the end of this function: a second process waits here and then finds the marker.
@@ -60,10 +67,12 @@ fn make_venv(dir: &Path) -> PathBuf {
             "--disable-pip-version-check",
             PYMAVLINK,
         ])
+        .args(PYMAVLINK_NEEDS)
         .status();
     assert!(
         pip.is_ok_and(|s| s.success()),
-        "`pip install {PYMAVLINK}` into {} failed (it needs PyPI)",
+        "`pip install {PYMAVLINK} {}` into {} failed (it needs PyPI)",
+        PYMAVLINK_NEEDS.join(" "),
         venv.display()
     );
     let works = Command::new(&python)
@@ -74,6 +83,6 @@ fn make_venv(dir: &Path) -> PathBuf {
         "pymavlink was installed into {} but does not import",
         venv.display()
     );
-    fs::write(&marker, format!("{PYMAVLINK} installed\n")).expect("write the venv's ready marker");
+    fs::write(&marker, format!("{pins} installed\n")).expect("write the venv's ready marker");
     python
 }
