@@ -401,3 +401,28 @@ async fn a_second_program_on_the_port_is_refused_both_ways() {
     every_servo_online(&bus).await;
     bus.shutdown(ShutdownForce::AsIs).await;
 }
+
+/// A port refused at once is reported before anyone could subscribe to the bus's events: the
+/// first subscriber still hears it (the bridge's loop tells the operator the reason from it).
+#[tokio::test]
+async fn the_first_subscriber_hears_a_refusal_made_before_it_subscribed() {
+    let bus = spawn_bus(
+        bus_config(&[1], BaudRate::B115200),
+        link_path("never-there"),
+    );
+    // The thread has tried the port, failed and reported it, before the subscription.
+    let deadline = std::time::Instant::now() + PATIENCE;
+    while bus.turns() < 3 {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the bus thread never turned"
+        );
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    let mut events = bus.events();
+    wait_event(&mut events, "the refusal", |e| {
+        matches!(e, BusEvent::PortLost { .. })
+    })
+    .await;
+    bus.shutdown(ShutdownForce::AsIs).await;
+}

@@ -489,6 +489,10 @@ pub struct BusHandle {
     owners: Arc<Owners>,
     status: watch::Receiver<BusStatus>,
     events: broadcast::Sender<BusEvent>,
+    /// A subscription made before the thread started, for the first caller of
+    /// [`BusHandle::events`] (of any clone): a port refused at once is reported before anyone
+    /// could subscribe.
+    first_events: Arc<Mutex<Option<broadcast::Receiver<BusEvent>>>>,
     finished: watch::Receiver<bool>,
 }
 
@@ -580,9 +584,15 @@ impl BusHandle {
         self.status.clone()
     }
 
-    /// Every event from now on.
+    /// Every event: the first call since the bus started (the thread may have reported a
+    /// refused port already), later calls from then on.
     pub fn events(&self) -> broadcast::Receiver<BusEvent> {
-        self.events.subscribe()
+        let first = self
+            .first_events
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take();
+        first.unwrap_or_else(|| self.events.subscribe())
     }
 
     /// Stop the bus: wait for a pending reply, write the final packets, let them leave the
@@ -619,7 +629,7 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
     let rs485 = cfg.rs485;
     let master = BusMaster::new(cfg, Instant::now());
     let (status_tx, status_rx) = watch::channel(master.status());
-    let (event_tx, _) = broadcast::channel(EVENT_CAPACITY);
+    let (event_tx, first_events) = broadcast::channel(EVENT_CAPACITY);
     let (finished_tx, finished_rx) = watch::channel(false);
     let wakers = Wakers::new();
     if let Err(e) = &wakers {
@@ -663,6 +673,7 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
         owners: Arc::new(Owners { shared }),
         status: status_rx,
         events: event_tx,
+        first_events: Arc::new(Mutex::new(Some(first_events))),
         finished: finished_rx,
     }
 }

@@ -955,37 +955,15 @@ fn forward_bus_events(
     record: Option<RecordHandle>,
     to_loop: mpsc::UnboundedSender<(usize, BusEvent)>,
 ) -> tokio::task::JoinHandle<()> {
+    // The first subscription: it holds every event since the bus started, a port refused at
+    // once included (see `BusHandle::events`).
     let mut events = bus.events();
-    // A port that failed at once (missing, or refusing RS485 mode) may have been reported
-    // before this subscription; the status, published before each event, still says so. Tell
-    // it here, and keep the bus's own report of that loss out of the loop if it comes after
-    // all (the bus reports a loss only after the port was back).
-    let lost_before = !bus.status().port_open;
     let feed = record.map(|r| StatusFeed::new(r, &RecordServo::from_config(cfg)));
     let bus_name = bus.name().to_string();
     tokio::spawn(async move {
-        let mut told_lost = lost_before;
-        if lost_before {
-            let e = BusEvent::PortLost {
-                reason: "the port has not opened since the start".to_string(),
-            };
-            if let Some(feed) = &feed {
-                feed.bus_event(&bus_name, &e);
-            }
-            if to_loop.send((i, e)).is_err() {
-                return;
-            }
-        }
         loop {
             match events.recv().await {
-                Ok(BusEvent::PortLost { reason }) if told_lost => {
-                    told_lost = false;
-                    tracing::warn!(bus = %bus_name, "serial port lost: {reason}");
-                }
                 Ok(e) => {
-                    if matches!(e, BusEvent::PortBack) {
-                        told_lost = false;
-                    }
                     if let Some(feed) = &feed {
                         feed.bus_event(&bus_name, &e);
                     }
