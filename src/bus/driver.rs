@@ -34,29 +34,33 @@
 //! port and the bus master. It never panics: a port error is a lost port, a poisoned lock is
 //! taken over, a thread that cannot start is logged.
 
+mod port;
+mod realtime;
+
 use super::config::BusConfig;
 use super::event::BusEvent;
 use super::goal::{Goal, ShutdownForce};
 use super::master::BusMaster;
 use super::status::{BusStatus, ThreadUsage};
-use crate::protocol::{BaudRate, ServoId};
+use crate::protocol::ServoId;
 use crate::serial::rs485::Rs485Request;
-use nix::fcntl::{FcntlArg, OFlag, fcntl};
 use nix::poll::{PollFd, PollFlags, ppoll};
 use nix::sys::eventfd::{EfdFlags, EventFd};
-use nix::sys::termios::{SetArg, SpecialCharacterIndices, Termios, tcdrain, tcgetattr, tcsetattr};
+use nix::sys::termios::tcdrain;
 use nix::sys::time::TimeSpec;
 use nix::sys::timer::{Expiration, TimerSetTimeFlags};
 use nix::sys::timerfd::{ClockId, TimerFd, TimerFlags};
+use port::{ReplyWaiter, Waited, bytes_in, open_port};
+pub use realtime::{REALTIME_PRIORITY, lock_memory};
+use realtime::{request_realtime, request_short_slice, warn_not_realtime};
 use std::fs::File;
 use std::io::{Read, Write};
-use std::os::fd::{AsFd, AsRawFd, FromRawFd, IntoRawFd};
-use std::path::{Path, PathBuf};
+use std::os::fd::AsFd;
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, watch};
-use tokio_serial::{DataBits, FlowControl, Parity, StopBits};
 
 /// Events kept for a slow subscriber before it starts missing them.
 const EVENT_CAPACITY: usize = 256;
@@ -66,81 +70,6 @@ const STATUS_REFRESH: Duration = Duration::from_millis(100);
 /// Timer slack of the bus thread: the default 50 µs is more than half a byte time at
 /// 115 200 bit/s.
 const TIMER_SLACK_NS: u64 = 1_000;
-
-/// The real-time priority the bus thread asks for (SCHED_FIFO): modest, above every normal
-/// thread (cameras, ROS, loggers), below the kernel's own real-time threads.
-pub const REALTIME_PRIORITY: i32 = 10;
-
-/// Ask for real-time scheduling (SCHED_FIFO at [`REALTIME_PRIORITY`]): the bus thread then runs
-/// the moment a reply's last byte or a goal's deadline comes, whatever else the computer runs.
-/// It sleeps between them (spinning at most [`SPIN_LIMIT`] for a reply's last bytes), so it
-/// never holds a core. Refused without CAP_SYS_NICE or an RLIMIT_RTPRIO of at least the
-/// priority (`lj9da-bridge deploy systemd` grants both).
-fn request_realtime() -> std::io::Result<()> {
-    lj9da_realtime::request_fifo(REALTIME_PRIORITY)
-}
-
-/// Say once per process, at warning level, that the bus threads run without real-time
-/// scheduling, and what to grant.
-fn warn_not_realtime(error: &std::io::Error) {
-    static ONCE: std::sync::Once = std::sync::Once::new();
-    ONCE.call_once(|| {
-        tracing::warn!(
-            "bus threads run without real-time scheduling (SCHED_FIFO {REALTIME_PRIORITY} refused: \
-             {error}): beside busy programs a goal may wait milliseconds for the CPU. Grant \
-             CAP_SYS_NICE or LimitRTPRIO={REALTIME_PRIORITY} (the unit of `lj9da-bridge deploy \
-             systemd` does)"
-        );
-    });
-}
-
-/// Lock the process's memory (current and future) into RAM, so that a page the bus threads
-/// touch is never fetched back from disk while a reply or a goal waits. Done only where the
-/// locked-memory limit is unlimited (root, or `LimitMEMLOCK=infinity` as in the unit of
-/// `lj9da-bridge deploy systemd`): under a finite limit, locking future pages would make the
-/// process's allocations fail once it is reached. Says once, at warning level, when it is not
-/// done.
-pub fn lock_memory() {
-    use nix::libc;
-    let mut limit = libc::rlimit {
-        rlim_cur: 0,
-        rlim_max: 0,
-    };
-    // SAFETY: getrlimit writes the limit into `limit`, a valid rlimit.
-    let unlimited = unsafe { libc::getrlimit(libc::RLIMIT_MEMLOCK, &mut limit) } == 0
-        && limit.rlim_cur == libc::RLIM_INFINITY;
-    if !unlimited {
-        tracing::warn!(
-            "memory not locked: the locked-memory limit is {} KiB, not unlimited; a page fault \
-             may delay a goal (set LimitMEMLOCK=infinity, as the unit of `lj9da-bridge deploy \
-             systemd` does)",
-            limit.rlim_cur / 1024
-        );
-        return;
-    }
-    // SAFETY: mlockall takes flags only.
-    if unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } != 0 {
-        tracing::warn!(
-            "memory not locked: {}; a page fault may delay a goal",
-            std::io::Error::last_os_error()
-        );
-    } else {
-        tracing::debug!("memory locked");
-    }
-}
-
-/// The time slice the bus thread asks the scheduler for (the shortest Linux grants).
-const SCHED_SLICE: Duration = Duration::from_micros(100);
-
-/// Ask the scheduler to run this thread in short slices (Linux ≥ 6.12, EEVDF: `sched_setattr`
-/// with a `sched_runtime` for a normal thread; no privilege needed). A thread with a shorter
-/// slice than the one running may preempt it when it wakes, instead of waiting for that
-/// thread's slice (a few ms) to end: the bus thread wakes for a reply's last byte or a deadline
-/// and has tens of µs of work. Older kernels refuse it; nothing else changes. The thread keeps
-/// its nice value (which `sched_setattr` sets too).
-fn request_short_slice() -> std::io::Result<()> {
-    lj9da_realtime::request_slice(SCHED_SLICE, lj9da_realtime::nice()?)
-}
 
 /// A wake-up this long after the instant slept until is counted as late
 /// ([`super::BusCounters::late_wakeups`]).
@@ -678,40 +607,6 @@ pub fn spawn_bus_observed(cfg: BusConfig, port: PathBuf, observe: StatusObserver
     }
 }
 
-/// Open `path` at `baud`, 8N1, no flow control, without `TIOCEXCL` (a pseudo-terminal in
-/// tests) but refused while another program holds it (see [`crate::serial::lock`]),
-/// non-blocking: reads return what has arrived, writes never wait; in RS485 mode when the bus
-/// asks for it (a refusal keeps the port closed). With it, the bus thread's [`ReplyWaiter`] on
-/// the same port.
-fn open_port(
-    path: &Path,
-    baud: BaudRate,
-    rs485: Option<&mut Rs485Request>,
-) -> Result<(File, ReplyWaiter), String> {
-    let mut native = tokio_serial::new(path.to_string_lossy(), baud.bits_per_second())
-        .data_bits(DataBits::Eight)
-        .parity(Parity::None)
-        .stop_bits(StopBits::One)
-        .flow_control(FlowControl::None)
-        .open_native()
-        .map_err(|e| match crate::serial::lock::refused_on_open(path, &e) {
-            Some(in_use) => in_use.to_string(),
-            None => e.to_string(),
-        })?;
-    let _ = native.set_exclusive(false);
-    // SAFETY: `into_raw_fd` hands over a valid, open descriptor that nothing else owns or
-    // closes any more; the `File` becomes its only owner.
-    let port = unsafe { File::from_raw_fd(native.into_raw_fd()) };
-    if let Some(request) = rs485 {
-        request.apply(path, port.as_fd())?;
-    }
-    let flags = fcntl(port.as_raw_fd(), FcntlArg::F_GETFL).map_err(|e| e.to_string())?;
-    let flags = OFlag::from_bits_retain(flags) | OFlag::O_NONBLOCK;
-    fcntl(port.as_raw_fd(), FcntlArg::F_SETFL(flags)).map_err(|e| e.to_string())?;
-    let waiter = ReplyWaiter::new(&port).map_err(|e| e.to_string())?;
-    Ok((port, waiter))
-}
-
 enum Exit {
     Shutdown,
     PortLost(String),
@@ -1025,134 +920,5 @@ fn thread_usage() -> ThreadUsage {
     }
 }
 
-/// The bytes the tty holds for reading (`TIOCINQ`; `None` where it cannot tell). Unlike a
-/// read that finds nothing, it never waits for the kernel's worker to pass bytes on.
-fn bytes_in(port: &File) -> Option<usize> {
-    use nix::libc;
-    let mut held: libc::c_int = 0;
-    // SAFETY: TIOCINQ writes one c_int, into `held`, which lives across the call.
-    if unsafe { libc::ioctl(port.as_raw_fd(), libc::TIOCINQ, &mut held) } != 0 {
-        return None;
-    }
-    usize::try_from(held).ok()
-}
-
-/// Waits on the port for the last bytes of a reply, without the core locked. It holds its own
-/// descriptor of the port (a duplicate), so a writer closing the port meanwhile cannot pull
-/// the descriptor from under the wait.
-struct ReplyWaiter {
-    port: File,
-    /// The tty's settings, to change its read threshold (`None` when it cannot be changed:
-    /// the wait then ends at the first byte, and the bus thread looks again).
-    termios: Option<Termios>,
-    /// The read threshold set last.
-    vmin: u8,
-}
-
-/// Whether a [`ReplyWaiter::wait_for`] that timed out came back late (see [`LATE_WAKEUP`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Waited {
-    InTime,
-    /// Woken this long after the deadline.
-    Late(Duration),
-}
-
-impl ReplyWaiter {
-    fn new(port: &File) -> std::io::Result<Self> {
-        let port = port.try_clone()?;
-        let termios = tcgetattr(&port).ok().map(|mut termios| {
-            // VMIN counts only when VTIME is 0.
-            termios.control_chars[SpecialCharacterIndices::VTIME as usize] = 0;
-            termios
-        });
-        Ok(ReplyWaiter {
-            port,
-            termios,
-            vmin: 0,
-        })
-    }
-
-    /// Block until `bytes` more bytes can be read (or the port failed), or until `until`.
-    /// The tty's read threshold (termios `VMIN`) is set to `bytes` first, so the kernel makes
-    /// the port readable only then; reads stay non-blocking and return whatever is there.
-    fn wait_for(&mut self, bytes: usize, until: Instant) -> Waited {
-        self.set_threshold(u8::try_from(bytes.max(1)).unwrap_or(u8::MAX));
-        let left = until.saturating_duration_since(Instant::now());
-        if left.is_zero() {
-            return Waited::InTime;
-        }
-        let mut fds = [PollFd::new(self.port.as_fd(), PollFlags::POLLIN)];
-        // Readable, failed, hung up or timed out: the bus thread reads and looks again.
-        let timed_out = ppoll(&mut fds, Some(TimeSpec::from_duration(left)), None) == Ok(0);
-        let late = Instant::now().saturating_duration_since(until);
-        if timed_out && late > LATE_WAKEUP {
-            Waited::Late(late)
-        } else {
-            Waited::InTime
-        }
-    }
-
-    /// Set the tty's read threshold to `vmin` bytes (no system call when it is already so).
-    fn set_threshold(&mut self, vmin: u8) {
-        let Some(termios) = self.termios.as_mut() else {
-            return;
-        };
-        if vmin == self.vmin {
-            return;
-        }
-        termios.control_chars[SpecialCharacterIndices::VMIN as usize] = vmin;
-        match tcsetattr(&self.port, SetArg::TCSANOW, termios) {
-            Ok(()) => self.vmin = vmin,
-            Err(e) => {
-                tracing::debug!("read threshold not settable, waking at every byte: {e}");
-                self.termios = None;
-            }
-        }
-    }
-}
-
-impl Drop for ReplyWaiter {
-    /// Leave the tty reading byte by byte, as it was opened, for whoever opens it next.
-    fn drop(&mut self) {
-        if self.vmin > 1 {
-            self.set_threshold(1);
-        }
-    }
-}
-
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_write_moves_the_sleeping_thread_s_timer_to_the_bus_master_s_next_deadline() {
-        let t = Instant::now();
-        let ms = |n: u64| t + Duration::from_millis(n);
-        // Asleep until its own 18 ms, no timer: a deadline before then sets the timer; one
-        // after it, or none, changes nothing.
-        assert_eq!(rearm(ms(18), ms(18), Some(ms(2))), Rearm::Set(ms(2)));
-        assert_eq!(rearm(ms(18), ms(18), Some(ms(30))), Rearm::Keep);
-        assert_eq!(rearm(ms(18), ms(18), None), Rearm::Keep);
-        // A tick's first message brought the wake-up forward to the end of its gathering
-        // window (0.1 ms); the message that closed the window wrote the frame, and the next
-        // deadline is the look at the reply behind it (4 ms): the timer goes back to it.
-        assert_eq!(rearm(ms(0), ms(18), Some(ms(4))), Rearm::Set(ms(4)));
-        // Nothing due before the thread's own wait ends: the timer is unset.
-        assert_eq!(rearm(ms(4), ms(18), Some(ms(25))), Rearm::Unset);
-        assert_eq!(rearm(ms(4), ms(18), None), Rearm::Unset);
-        // Sooner still, or the same.
-        assert_eq!(rearm(ms(4), ms(18), Some(ms(3))), Rearm::Set(ms(3)));
-        assert_eq!(rearm(ms(4), ms(18), Some(ms(4))), Rearm::Keep);
-    }
-
-    #[test]
-    fn a_late_wake_up_is_told_once_then_only_counted() {
-        let ms = Duration::from_millis;
-        let mut late = LateWakeups::default();
-        let first = late.note(ms(2)).expect("the first is told");
-        assert!(first.contains("2.0 ms late"), "{first}");
-        for _ in 0..1000 {
-            assert_eq!(late.note(ms(3)), None);
-        }
-    }
-}
+mod tests;

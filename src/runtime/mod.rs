@@ -11,27 +11,24 @@
 //! All decisions live in [`BridgeCore`] and [`crate::bus::BusMaster`]; this module only moves
 //! data and waits.
 
+mod buses;
 mod links;
 pub mod service;
 mod udp;
 
-use crate::bus::{
-    BusConfig, BusEvent, BusHandle, BusStatus, Health, ServoSetup, ShutdownForce, spawn_bus,
-    spawn_bus_observed,
-};
+use crate::bus::{BusEvent, BusHandle, BusStatus, Health, ShutdownForce};
 use crate::config::edit::MappingFile;
 use crate::config::{Config, ExitAction};
 use crate::mavlink::outbox::Queued;
 use crate::mavlink::param_server::ParamSet;
 use crate::mavlink::signing::{self, DropCounts};
-use crate::mavlink::{
-    BridgeCore, BridgeEvent, LinkId, ServoEvent, ServoReport, ServoState, TemperatureReading,
-};
+use crate::mavlink::{BridgeCore, LinkId, ServoReport};
 use crate::protocol::ServoId;
-use crate::record::{RecordHandle, RecordLimits, RecordServo, Recorder, StatusFeed};
-use crate::serial::rs485::Rs485Mode;
+use crate::record::{RecordHandle, RecordLimits, RecordServo, Recorder};
 use ::mavlink::MavHeader;
 use ::mavlink::dialects::common::MavMessage;
+use buses::{Buses, bridge_event, forward_bus_events};
+pub use buses::{FRESH_FOR, report_of};
 use links::{KnownAutopilot, Link, LinkThread, LinkWriter, SharedSigning};
 use service::{Verdict, Watchdog};
 use std::collections::HashMap;
@@ -115,210 +112,6 @@ pub struct BridgeView {
 
 /// How many of the latest STATUSTEXTs the view keeps.
 pub const VIEW_TEXTS: usize = 6;
-
-/// The running bridge's buses, in the order of the mapping file's `[[bus]]` tables, and where
-/// each servo lives.
-struct Buses {
-    handles: Vec<BusHandle>,
-    /// For each servo (mapping order): its bus index and ID.
-    servo_at: Vec<(usize, ServoId)>,
-}
-
-impl Buses {
-    /// Start every bus; with a flight record, each bus thread records its own statuses (every
-    /// telemetry sample, without waking another thread for it).
-    fn spawn(
-        cfg: &Config,
-        ports: &HashMap<String, PathBuf>,
-        record: Option<&RecordHandle>,
-    ) -> Self {
-        let mut handles = Vec::new();
-        for bus in &cfg.buses {
-            let setups = cfg
-                .servos
-                .iter()
-                .filter(|s| s.bus == bus.name)
-                .map(|s| ServoSetup {
-                    id: s.id,
-                    name: s.name.clone(),
-                    goal_time: s.goal_time(),
-                    max_force: s.max_force_percent,
-                })
-                .collect();
-            let mut bus_cfg = BusConfig::new(bus.name.clone(), bus.baud, setups);
-            if let Some(ms) = bus.turnaround_ms {
-                bus_cfg.turnaround = std::time::Duration::from_secs_f32(ms / 1000.0);
-            }
-            bus_cfg.telemetry_min_interval = bus.telemetry.min_interval();
-            if let Some(w) = crate::config::warnings::telemetry_beyond_wire(cfg, bus) {
-                tracing::warn!("{}", w.trim_start_matches("warning: "));
-            }
-            let port = ports
-                .get(&bus.name)
-                .cloned()
-                .unwrap_or_else(|| bus.port.clone());
-            tracing::info!(bus = %bus.name, port = %port.display(), baud = %bus.baud, "opening bus");
-            bus_cfg.rs485 = rs485_mode(bus, ports.contains_key(&bus.name));
-            handles.push(match record {
-                Some(r) => {
-                    let mut feed = StatusFeed::new(r.clone(), &RecordServo::from_config(cfg));
-                    spawn_bus_observed(bus_cfg, port, Box::new(move |s| feed.observe(s)))
-                }
-                None => spawn_bus(bus_cfg, port),
-            });
-        }
-        let servo_at = cfg
-            .servos
-            .iter()
-            .map(|s| {
-                let bus = cfg.buses.iter().position(|b| b.name == s.bus).unwrap_or(0);
-                (bus, s.id)
-            })
-            .collect();
-        Buses { handles, servo_at }
-    }
-
-    fn reports(&self, cfg: &Config) -> (Vec<ServoReport>, Vec<ServoView>) {
-        let statuses: Vec<BusStatus> = self.handles.iter().map(BusHandle::status).collect();
-        self.reports_of(cfg, &statuses)
-    }
-
-    fn reports_of(
-        &self,
-        cfg: &Config,
-        statuses: &[BusStatus],
-    ) -> (Vec<ServoReport>, Vec<ServoView>) {
-        let mut reports = Vec::with_capacity(self.servo_at.len());
-        let mut views = Vec::with_capacity(self.servo_at.len());
-        for (i, (bus, id)) in self.servo_at.iter().enumerate() {
-            let status = statuses
-                .get(*bus)
-                .and_then(|b| b.servos.iter().find(|s| s.id == *id));
-            let (report, goal_mm, health) = match status {
-                Some(s) => (report_of(s), s.goal.map(|g| g.mm()), s.health),
-                None => (ServoReport::default(), None, Health::Starting),
-            };
-            reports.push(report);
-            let sc = &cfg.servos[i];
-            views.push(ServoView {
-                name: sc.name.clone(),
-                bus: sc.bus.clone(),
-                id: *id,
-                channel: sc.channel,
-                report,
-                goal_mm,
-                health,
-            });
-        }
-        (reports, views)
-    }
-}
-
-/// The RS485 mode bus `bus` of a mapping file asks of its port (`None` when the port is a
-/// simulation's pseudo-terminal, `simulated`, which has no RS485 mode to set), having said once
-/// what the mode asks of the servos.
-fn rs485_mode(bus: &crate::config::BusSection, simulated: bool) -> Option<Rs485Mode> {
-    let mode = bus.rs485.filter(|_| !simulated);
-    if mode.is_some()
-        && let Some(w) = crate::config::warnings::rs485_hold_after_send(bus)
-    {
-        tracing::warn!("{}", w.trim_start_matches("warning: "));
-    }
-    mode
-}
-
-/// How long a servo's latest reading is passed on to the ground station (and quoted in a
-/// STATUSTEXT). A servo that answers is read tens of times a second, so a reading this old
-/// belongs to a servo that has stopped answering; repeating it would show a past value as
-/// the present one.
-pub const FRESH_FOR: std::time::Duration = std::time::Duration::from_secs(1);
-
-/// The MAVLink view of one servo's bus status. Its telemetry goes out whenever the latest
-/// reading is fresh (younger than [`FRESH_FOR`] when the status was taken), whatever the
-/// servo's health: a servo in temperature error (force off) is still read, and that is when
-/// the operator most needs to watch its temperature fall and see where the rod stopped.
-pub fn report_of(s: &crate::bus::ServoStatus) -> ServoReport {
-    let state = match s.health {
-        Health::Starting => ServoState::Starting,
-        Health::Online => ServoState::Online,
-        Health::Stale => ServoState::Stale,
-        Health::Offline => ServoState::Offline,
-        Health::WrongModel | Health::TemperatureError => ServoState::Fault,
-    };
-    let fresh = s.age.is_some_and(|age| age < FRESH_FOR);
-    let t = s.telemetry.filter(|_| fresh);
-    ServoReport {
-        state: Some(state),
-        position_mm: t.map(|t| t.present_position.mm() as f32),
-        current_a: t.map(|t| t.present_load.amps() as f32),
-        temperature_c: t.map(|t| f32::from(t.present_temperature.0)),
-        voltage_v: t.map(|t| t.present_voltage.volts() as f32),
-        temperature_alarm: s.flags.temperature_alarm(),
-        temperature_error: s.flags.temperature_error() || s.health == Health::TemperatureError,
-        stalled: s.stalled,
-        error_count: s.timeouts.min(u64::from(u32::MAX)) as u32,
-        model: s.identity.model,
-        firmware: s.identity.firmware,
-        degraded: s.degraded,
-    }
-}
-
-/// A bus event as the MAVLink side announces it (`None`: logged only).
-fn bridge_event(cfg: &Config, buses: &Buses, bus: usize, event: &BusEvent) -> Option<BridgeEvent> {
-    let bus_name = cfg
-        .buses
-        .get(bus)
-        .map(|b| b.name.clone())
-        .unwrap_or_default();
-    let servo = event.servo().and_then(|id| {
-        buses
-            .servo_at
-            .iter()
-            .position(|(b, i)| *b == bus && *i == id)
-    });
-    // The temperature quoted with an alarm or error: the latest reading, if it is fresh, and
-    // its age now. The all-clear quotes none: after a power cycle the last reading can predate
-    // the restart.
-    let reading = || {
-        let id = event.servo()?;
-        let status = buses.handles.get(bus)?.status();
-        let servo = status.servos.iter().find(|s| s.id == id)?;
-        let age = servo.telemetry_at?.elapsed();
-        (age < FRESH_FOR).then_some(TemperatureReading {
-            celsius: servo.telemetry?.present_temperature.0,
-            age,
-        })
-    };
-    let servo_event = match event {
-        BusEvent::ServoLost { .. } => ServoEvent::Lost,
-        BusEvent::ServoBack { .. } => ServoEvent::Back,
-        BusEvent::TemperatureAlarm { on, .. } => ServoEvent::TemperatureAlarm {
-            on: *on,
-            reading: if *on { reading() } else { None },
-        },
-        BusEvent::TemperatureError { .. } => ServoEvent::TemperatureError {
-            last_read: reading(),
-        },
-        BusEvent::Stalled { on, .. } => ServoEvent::Stalled { on: *on },
-        BusEvent::WrongModel { found, .. } => ServoEvent::WrongModel { found: *found },
-        BusEvent::FlashWriteError { .. } => ServoEvent::FlashWriteError,
-        BusEvent::RepliesDegraded { percent, .. } => {
-            ServoEvent::RepliesDegraded { percent: *percent }
-        }
-        BusEvent::RepliesOk { .. } => ServoEvent::RepliesOk,
-        BusEvent::PortLost { .. } => return Some(BridgeEvent::PortLost { bus: bus_name }),
-        BusEvent::PortBack => return Some(BridgeEvent::PortBack { bus: bus_name }),
-        BusEvent::ServoOnline { .. }
-        | BusEvent::ServoRestarted { .. }
-        | BusEvent::ForceRefused { .. } => {
-            return None;
-        }
-    };
-    Some(BridgeEvent::Servo {
-        servo: servo?,
-        event: servo_event,
-    })
-}
 
 /// How a run differs from the mapping file alone.
 #[derive(Debug, Default)]
@@ -947,39 +740,6 @@ impl Bridge {
     }
 }
 
-/// A task that passes bus `i`'s events to the loop (and to the flight record).
-fn forward_bus_events(
-    cfg: &Config,
-    i: usize,
-    bus: &BusHandle,
-    record: Option<RecordHandle>,
-    to_loop: mpsc::UnboundedSender<(usize, BusEvent)>,
-) -> tokio::task::JoinHandle<()> {
-    // The first subscription: it holds every event since the bus started, a port refused at
-    // once included (see `BusHandle::events`).
-    let mut events = bus.events();
-    let feed = record.map(|r| StatusFeed::new(r, &RecordServo::from_config(cfg)));
-    let bus_name = bus.name().to_string();
-    tokio::spawn(async move {
-        loop {
-            match events.recv().await {
-                Ok(e) => {
-                    if let Some(feed) = &feed {
-                        feed.bus_event(&bus_name, &e);
-                    }
-                    if to_loop.send((i, e)).is_err() {
-                        return;
-                    }
-                }
-                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
-                    tracing::warn!(bus = i, "{n} bus events dropped");
-                }
-                Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
-            }
-        }
-    })
-}
-
 /// Sleep until `deadline`; with none, forever (until another branch of a `select!` wins).
 async fn sleep_until(deadline: Option<tokio::time::Instant>) {
     match deadline {
@@ -1009,121 +769,4 @@ pub async fn shutdown_signal() {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::bus::{ForceState, ServoIdentity, ServoStatus};
-    use crate::protocol::{Celsius, Ma10, MmCenti, Ms10, Mv10, ReplyFlags, Telemetry};
-    use std::time::Duration;
-
-    /// A servo whose latest reading (1.5 mm, 0.3 A, 86 °C, 12 V) is `age` old.
-    fn status(health: Health, age: Option<Duration>) -> ServoStatus {
-        ServoStatus {
-            id: ServoId::new(4).unwrap(),
-            name: "rudder".into(),
-            health,
-            telemetry: Some(Telemetry {
-                present_position: MmCenti(150),
-                present_time: Ms10(0),
-                present_load: Ma10(30),
-                present_temperature: Celsius(86),
-                present_voltage: Mv10(1200),
-            }),
-            telemetry_at: age.map(|a| Instant::now() - a),
-            position_at: None,
-            motion_at: None,
-            age,
-            flags: ReplyFlags(0),
-            goal: None,
-            force: ForceState::Off,
-            stalled: false,
-            identity: ServoIdentity::default(),
-            consecutive_timeouts: 0,
-            telemetry_count: 100,
-            answered: 100,
-            timeouts: 0,
-            degraded: None,
-        }
-    }
-
-    fn telemetry_of(r: &ServoReport) -> [Option<f32>; 4] {
-        [r.position_mm, r.current_a, r.temperature_c, r.voltage_v]
-    }
-
-    #[test]
-    fn a_fresh_reading_goes_out_whatever_the_servos_health() {
-        let fresh = Some(Duration::from_millis(20));
-        for health in [
-            Health::Starting,
-            Health::Online,
-            Health::Stale,
-            Health::Offline,
-            Health::WrongModel,
-            Health::TemperatureError,
-        ] {
-            let r = report_of(&status(health, fresh));
-            assert_eq!(
-                telemetry_of(&r),
-                [Some(1.5), Some(0.3), Some(86.0), Some(12.0)],
-                "{health:?}"
-            );
-        }
-    }
-
-    #[test]
-    fn a_servo_in_temperature_error_reports_its_temperature_and_its_fault() {
-        let mut s = status(Health::TemperatureError, Some(Duration::from_millis(15)));
-        s.flags = ReplyFlags(ReplyFlags::TEMPERATURE_ERROR);
-        let r = report_of(&s);
-        assert_eq!(r.state, Some(ServoState::Fault));
-        assert!(r.temperature_error);
-        assert_eq!(r.temperature_c, Some(86.0));
-    }
-
-    #[test]
-    fn a_reading_older_than_fresh_for_is_not_passed_on_as_present() {
-        for health in [Health::Online, Health::Stale, Health::TemperatureError] {
-            let r = report_of(&status(health, Some(FRESH_FOR)));
-            assert_eq!(telemetry_of(&r), [None; 4], "{health:?}");
-        }
-        let mut never_read = status(Health::Online, None);
-        never_read.telemetry = None;
-        assert_eq!(telemetry_of(&report_of(&never_read)), [None; 4]);
-    }
-
-    fn trim_set(value: i64) -> ParamSet {
-        ParamSet {
-            index: 0,
-            name: "S1_PWM_TRIM".into(),
-            value: value as f32,
-            edits: vec![crate::config::edit::Edit::Set {
-                section: crate::config::edit::Section::Servo(0),
-                key: "pwm_trim_us",
-                value: value.into(),
-            }],
-        }
-    }
-
-    #[test]
-    fn the_mapping_writer_makes_changes_in_order_and_refuses_without_a_file() {
-        let (tx, _rx) = spawn_mapping_writer(None);
-        assert!(tx.try_send(trim_set(1500)).is_err(), "no file: refused");
-
-        let file = MappingFile::in_memory(
-            crate::config::SITL_DEFAULT_TOML,
-            crate::config::SITL_DEFAULT_ORIGIN,
-        )
-        .unwrap();
-        let (tx, mut rx) = spawn_mapping_writer(Some(file));
-        let results: Vec<_> = [1500, 9999, 1510]
-            .into_iter()
-            .map(|value| {
-                tx.blocking_send(trim_set(value)).unwrap();
-                let (set, result) = rx.blocking_recv().unwrap();
-                (set.value, result.map(|c| c.servos[0].pwm.trim_us))
-            })
-            .collect();
-        assert_eq!(results[0], (1500.0, Ok(1500)));
-        assert!(results[1].1.is_err(), "{results:?}");
-        assert_eq!(results[2], (1510.0, Ok(1510)));
-    }
-}
+mod tests;
