@@ -11,7 +11,7 @@
 //! All decisions live in [`BridgeCore`] and [`crate::bus::BusMaster`]; this module only moves
 //! data and waits.
 
-mod links;
+pub(crate) mod links;
 pub mod service;
 
 use crate::bus::{
