@@ -34,3 +34,18 @@ fn mavlink_input_inputs() {
 fn mapping_file_inputs() {
     replay("mapping_file", lj9da_bridge::fuzz_targets::mapping_file);
 }
+
+#[test]
+fn link_datagram_inputs() {
+    replay("link_datagram", lj9da_bridge::fuzz_targets::link_datagram);
+}
+
+#[test]
+fn signed_stream_inputs() {
+    replay("signed_stream", lj9da_bridge::fuzz_targets::signed_stream);
+}
+
+#[test]
+fn stream_framing_inputs() {
+    replay("stream_framing", lj9da_bridge::fuzz_targets::stream_framing);
+}
