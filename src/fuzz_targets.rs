@@ -573,6 +573,9 @@ pub fn signed_stream(data: &[u8]) {
                 let Some(frame) = sent.get(usize::from(index) % sent.len().max(1)) else {
                     continue;
                 };
+                if frame.is_empty() {
+                    continue;
+                }
                 let mut frame = frame.clone();
                 // Counted from the end: the signature's 13 bytes are the least positions.
                 let from_end = usize::from(position) % frame.len();
