@@ -486,7 +486,7 @@ impl Model {
 ///   still frame are judged);
 /// - 5: bytes as they are (what frames in them is judged);
 /// - 6: the wall clock moves (± 327 s, in 10 ms; backwards too) and the monotonic one forward;
-/// - 7: an unsigned message, MAVLink 1 or 2 (a RADIO_STATUS among them).
+/// - 7: an unsigned message, MAVLink 1 (ids up to 255) or 2 (a RADIO_STATUS among them).
 ///
 /// Every frame is sent as bytes through `frames_of`. Asserted, against the rules of
 /// `crate::mavlink::signing` kept in a model: each verdict (radio, dropped and why, or
@@ -597,7 +597,8 @@ pub fn signed_stream(data: &[u8]) {
                 let selector = input.u8();
                 let id = STREAM_IDS[usize::from(selector) % STREAM_IDS.len()];
                 let len = usize::from(input.u8());
-                let version = if selector & 0x80 != 0 {
+                // MAVLink 1 carries message ids up to 255 only.
+                let version = if selector & 0x80 != 0 && id <= 255 {
                     MavlinkVersion::V1
                 } else {
                     MavlinkVersion::V2
