@@ -289,14 +289,14 @@ fn fuzz_signing() -> SharedSigning {
 /// (`frames_of`) are judged as the reader judges them, on link `options & 1`, without signing
 /// and with it ([`FUZZ_KEY`]); with `options & 2`, each MAVLink 2 frame is first signed with
 /// the key (signature link id `options >> 4`), at timestamps that increase from now
-/// (`options & 4`) or from [`FAR_FUTURE`], so that fuzzed contents pass the check too. Every
-/// accepted message goes into the bridge's core.
+/// (`options & 4`) or from [`FAR_FUTURE`], so that fuzzed contents pass the check too, or
+/// (`options & 8`) with another key. Every accepted message goes into the bridge's core.
 ///
 /// Asserted: without signing every frame is accepted, as the message its payload parses to;
 /// with signing, an accepted frame is MAVLink 2, flagged signed, its signature the key's, and
 /// its timestamp above every one accepted before in its stream (link id, system, component),
-/// and it is the same message as without signing; a frame the target signed fresh is
-/// accepted; and each frame `frames_of` gives has a valid checksum and lies in the datagram,
+/// and it is the same message as without signing; a frame the target signed fresh with the
+/// key is accepted, one it signed with another key dropped; and each frame `frames_of` gives has a valid checksum and lies in the datagram,
 /// in order, without overlapping the one before.
 pub fn link_datagram(data: &[u8]) {
     let Some((&options, datagram)) = data.split_first() else {
@@ -304,6 +304,11 @@ pub fn link_datagram(data: &[u8]) {
     };
     let link = usize::from(options & 1);
     let resign = options & 2 != 0;
+    let signer = if options & 8 != 0 {
+        [0xa1; 32]
+    } else {
+        FUZZ_KEY
+    };
     let signature_link = options >> 4;
     let mut stamp = if options & 4 != 0 {
         signing::now()
@@ -334,7 +339,7 @@ pub fn link_datagram(data: &[u8]) {
         let frame = match (&frame, resign) {
             (MAVLinkMessageRaw::V2(f), true) => {
                 stamp += 1;
-                MAVLinkMessageRaw::V2(sign_raw(f, &FUZZ_KEY, signature_link, stamp))
+                MAVLinkMessageRaw::V2(sign_raw(f, &signer, signature_link, stamp))
             }
             _ => frame,
         };
@@ -354,7 +359,8 @@ pub fn link_datagram(data: &[u8]) {
         }
 
         let signed = judge(&frame, link, "fuzz", Some(&shared));
-        let fresh_signed_here = resign && matches!(frame, MAVLinkMessageRaw::V2(_));
+        let fresh_signed_here =
+            resign && signer == FUZZ_KEY && matches!(frame, MAVLinkMessageRaw::V2(_));
         let Some(accepted) = signed else {
             assert!(
                 !fresh_signed_here,

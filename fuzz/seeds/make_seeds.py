@@ -94,8 +94,9 @@ for kind in ["ODOMETRY", "HIGHRES_IMU"]:
     for i, d in enumerate(first_of(px4_onboard, kind)):
         unsigned[f"px4_onboard_{kind.lower()}_{i}"] = d
 for i, (name, d) in enumerate(sorted(unsigned.items())):
-    # Mostly as a reader sees it (link 0 or 1); every fourth re-signed by the target.
-    options = [0x00, 0x01, 0x00, 0x02 | 0x10][i % 4]
+    # Mostly as a reader sees it (link 0 or 1); every fourth re-signed by the target, with the
+    # key or (every eighth) another.
+    options = [0x00, 0x01, 0x00, 0x02 | 0x10, 0x00, 0x01, 0x00, 0x02 | 0x08][i % 8]
     write("link_datagram", name, bytes([options]) + d)
 
 hb_ap = first_of(ap, "HEARTBEAT")[0]
