@@ -11,6 +11,8 @@ fn replay(target: &str, run: fn(&[u8])) {
     for entry in std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
         let path = entry.unwrap().path();
         let data = std::fs::read(&path).unwrap();
+        // Shown with the panic's message when an input fails.
+        eprintln!("{}", path.display());
         run(&data);
         count += 1;
     }
