@@ -11,6 +11,8 @@ fn replay(target: &str, run: fn(&[u8])) {
     for entry in std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
         let path = entry.unwrap().path();
         let data = std::fs::read(&path).unwrap();
+        // Shown with the panic's message when an input fails.
+        eprintln!("{}", path.display());
         run(&data);
         count += 1;
     }
@@ -33,4 +35,19 @@ fn mavlink_input_inputs() {
 #[test]
 fn mapping_file_inputs() {
     replay("mapping_file", lj9da_bridge::fuzz_targets::mapping_file);
+}
+
+#[test]
+fn link_datagram_inputs() {
+    replay("link_datagram", lj9da_bridge::fuzz_targets::link_datagram);
+}
+
+#[test]
+fn signed_stream_inputs() {
+    replay("signed_stream", lj9da_bridge::fuzz_targets::signed_stream);
+}
+
+#[test]
+fn stream_framing_inputs() {
+    replay("stream_framing", lj9da_bridge::fuzz_targets::stream_framing);
 }

@@ -429,7 +429,7 @@ impl KnownAutopilot {
 /// with it, only correctly signed fresh ones (the others are counted and, now and then,
 /// logged with the link's `address`). `Some(None)`: accepted, but not a message of the dialect.
 #[allow(clippy::option_option)]
-fn judge(
+pub(crate) fn judge(
     frame: &MAVLinkMessageRaw,
     link_id: LinkId,
     address: &str,

@@ -12,7 +12,7 @@
 //! data and waits.
 
 mod buses;
-mod links;
+pub(crate) mod links;
 pub mod service;
 mod udp;
 
