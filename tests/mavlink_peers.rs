@@ -540,10 +540,15 @@ async fn a_burst_of_a_thousand_param_sets_writes_the_file_a_bounded_number_of_ti
     // next window goes only once the bridge has answered the read that closed the one before
     // (it reads a link in order: the answer says it took the whole window in). The windows
     // are paced, one every 100 ms: the burst is planned to last 900 ms from the first window
-    // to the last.
-    let mut gcs = Peer::new((255, 190), false).await;
+    // to the last. Each window comes from a ground station of its own: the bridge's loop takes
+    // at most 100 messages a second from a system other than the autopilot, in bursts of 200
+    // (`mavlink::admission`), and a window is 101.
     let start = tokio::time::Instant::now();
+    let mut gcs = Peer::new((200, 190), false).await;
     for window in 0..WINDOWS {
+        if window > 0 {
+            gcs = Peer::new((200 + window as u8, 190), false).await;
+        }
         tokio::time::sleep_until(start + WINDOW_EVERY * u32::from(window)).await;
         for k in 0..WINDOW_SETS / 2 {
             let i = window * (WINDOW_SETS / 2) + k;
@@ -553,7 +558,7 @@ async fn a_burst_of_a_thousand_param_sets_writes_the_file_a_bounded_number_of_ti
         gcs.send(port, &read).await;
         let closed = usize::from(window) + 1;
         let deadline = Instant::now() + Duration::from_secs(20);
-        while reads_answered(&gcs) < closed {
+        while reads_answered(&gcs) < 1 {
             assert!(
                 Instant::now() < deadline,
                 "no answer to the read closing window {closed} (receive drops: {:?})",
