@@ -767,8 +767,8 @@ fn at_once<F: std::future::Future>(future: F) -> F::Output {
 /// interrupted, and the reader's buffer (the default one, or the least the crate allows, one
 /// frame).
 ///
-/// Asserted: the reader ends only at the stream's end; its frames are, in order, those
-/// `frames_of` finds in the whole stream at once (where a frame was split changes nothing);
+/// Asserted: the reader ends only at the stream's end; its frames are, in order, those a
+/// reader finds in the whole stream at once (where a frame was split changes nothing);
 /// each has a valid checksum and lies in the stream after the one before; and each is accepted
 /// by `judge` without signing.
 pub fn stream_framing(data: &[u8]) {
@@ -799,7 +799,12 @@ pub fn stream_framing(data: &[u8]) {
             if e.kind() == std::io::ErrorKind::UnexpectedEof => {}
         other => panic!("the reader ended before the stream did: {other}"),
     }
-    let whole = frames_of(stream);
+    // The frames a reader finds in the whole stream at once (`frames_of` reads a datagram,
+    // which is whole: it also takes frames after a start byte whose frame runs past the end).
+    let whole: Vec<MAVLinkMessageRaw> = {
+        let mut reader = mavlink::MavlinkReader::new(stream);
+        std::iter::from_fn(|| reader.read_any_raw_message::<MavMessage>().ok()).collect()
+    };
     let bytes = |f: &Vec<MAVLinkMessageRaw>| -> Vec<Vec<u8>> {
         f.iter().map(|f| raw_bytes(f).to_vec()).collect()
     };

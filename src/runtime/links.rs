@@ -218,10 +218,47 @@ fn connection_gone(e: &std::io::Error) -> bool {
     )
 }
 
-/// The frames of one UDP datagram, in order; what is not a frame is skipped.
+/// The frames of one UDP datagram, in order; what is not a frame is skipped. A datagram is
+/// whole: a start byte whose frame would run past the datagram's end starts no frame, and the
+/// frames after it are read. (A byte stream's reader waits there for the rest of that frame;
+/// over UDP none comes, and junk or a cut frame before the frames of a datagram would lose
+/// them all.)
 pub fn frames_of(datagram: &[u8]) -> Vec<MAVLinkMessageRaw> {
-    let mut reader = MavlinkReader::new(datagram);
-    std::iter::from_fn(|| reader.read_any_raw_message::<MavMessage>().ok()).collect()
+    let mut frames = Vec::new();
+    let mut at = 0;
+    while at < datagram.len() {
+        let Some(length) = frame_length(&datagram[at..]).filter(|n| at + n <= datagram.len())
+        else {
+            at += 1;
+            continue;
+        };
+        // Exactly the bytes of one frame: the reader takes it if its checksum is right.
+        let mut reader = MavlinkReader::new(&datagram[at..at + length]);
+        match reader.read_any_raw_message::<MavMessage>() {
+            Ok(frame) if raw_bytes(&frame).len() == length => {
+                frames.push(frame);
+                at += length;
+            }
+            _ => at += 1,
+        }
+    }
+    frames
+}
+
+/// The length of the frame that `bytes` starts, from its header (`None`: no start byte, or
+/// too few bytes for a header).
+fn frame_length(bytes: &[u8]) -> Option<usize> {
+    match bytes {
+        // MAVLink 1: start, length, sequence, system, component, message id; checksum.
+        [0xFE, len, ..] => Some(6 + usize::from(*len) + 2),
+        // MAVLink 2: start, length, incompatibility and compatibility flags, sequence, system,
+        // component, message id (3); checksum; a signature when the first flag says so.
+        [0xFD, len, flags, ..] => {
+            let signature = if flags & 0x01 != 0 { 13 } else { 0 };
+            Some(10 + usize::from(*len) + 2 + signature)
+        }
+        _ => None,
+    }
 }
 
 /// The link to `address`: a `udpin` socket is bound now (an error if it cannot be); the other
@@ -717,6 +754,37 @@ fn lock<T>(outbox: &Mutex<T>) -> MutexGuard<'_, T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A datagram is whole: junk, or the start of a frame cut short, before or between frames
+    /// loses none of them.
+    #[test]
+    fn a_start_byte_whose_frame_runs_past_the_datagram_loses_no_frame_after_it() {
+        let sequences =
+            |bytes: &[u8]| -> Vec<u8> { frames_of(bytes).iter().map(|f| f.sequence()).collect() };
+        let two = [heartbeat(1), heartbeat(2)].concat();
+        assert_eq!(sequences(&two), [1, 2]);
+        // A MAVLink 1 start byte announcing 64 bytes, then two frames (fewer than 64 bytes
+        // follow the header it would have).
+        assert_eq!(sequences(&[&[0xFE, 0x40][..], &two].concat()), [1, 2]);
+        // A MAVLink 2 header cut short.
+        assert_eq!(
+            sequences(&[&[0xFD, 0x20, 0x00][..], &heartbeat(3)].concat()),
+            [3]
+        );
+        // A frame cut short between two whole ones.
+        let cut = &heartbeat(4)[..9];
+        assert_eq!(
+            sequences(&[heartbeat(5), cut.to_vec(), heartbeat(6)].concat()),
+            [5, 6]
+        );
+        // A frame with a bad checksum is skipped, the next one kept.
+        let mut bad = heartbeat(7);
+        let last = bad.len() - 1;
+        bad[last] ^= 0xFF;
+        assert_eq!(sequences(&[bad, heartbeat(8)].concat()), [8]);
+        // Junk only.
+        assert_eq!(sequences(&[0xFD; 300]), Vec::<u8>::new());
+    }
 
     /// A heartbeat frame numbered `sequence`, as the autopilot sends it.
     fn heartbeat(sequence: u8) -> Vec<u8> {
