@@ -158,28 +158,14 @@ pub const FAR_FUTURE: u64 = 75 * 365 * 86_400 * TICKS_PER_SECOND;
 const IFLAG_SIGNED: u8 = 0x01;
 
 /// The fuzz mapping with two links (the autopilot's and a ground station's) and signing on.
-const FUZZ_MAPPING_SIGNED: &str = r#"
-[mavlink]
-connection = "udpin:127.0.0.1:14560"
-gcs = "udpout:127.0.0.1:14561"
-signing_key = "5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e"
-[[bus]]
-name = "a"
-port = "/dev/null"
-[[servo]]
-name = "s1"
-bus = "a"
-id = 1
-channel = 1
-actuator = 1
-[[servo]]
-name = "s2"
-bus = "a"
-id = 2
-channel = 17
-reverse = true
-failsafe = -3.5
-"#;
+fn fuzz_mapping_signed() -> Config {
+    let text = FUZZ_MAPPING.replace(
+        "[mavlink]\n",
+        "[mavlink]\ngcs = \"udpout:127.0.0.1:14561\"\n\
+         signing_key = \"5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e5e\"\n",
+    );
+    Config::parse(&text, "fuzz").expect("fuzz mapping is valid")
+}
 
 fn raw_bytes(frame: &MAVLinkMessageRaw) -> &[u8] {
     match frame {
@@ -261,7 +247,7 @@ fn raw_v2(header: MavHeader, id: u32, payload: &[u8]) -> MAVLinkV2MessageRaw {
 fn fuzz_signing() -> SharedSigning {
     thread_local! {
         static SIGNING: SharedSigning = {
-            let cfg = Config::parse(FUZZ_MAPPING_SIGNED, "fuzz").expect("fuzz mapping is valid");
+            let cfg = fuzz_mapping_signed();
             // The timestamp file is written once, at the opening: a folder of this thread's own.
             let dir = std::env::temp_dir().join(format!(
                 "lj9da-fuzz-signing-{}-{:?}",
@@ -315,7 +301,7 @@ pub fn link_datagram(data: &[u8]) {
     } else {
         FAR_FUTURE
     };
-    let cfg = Config::parse(FUZZ_MAPPING_SIGNED, "fuzz").expect("fuzz mapping is valid");
+    let cfg = fuzz_mapping_signed();
     let travel: Vec<_> = cfg.servos.iter().map(|s| s.travel).collect();
     let t0 = Instant::now();
     let mut core = BridgeCore::new(cfg, t0);
