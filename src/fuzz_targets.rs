@@ -468,7 +468,7 @@ impl Model {
 /// The frames a receiver with [`FUZZ_KEY`] is sent, in order, on links 0, 1 and 2 (one more
 /// than it has), with its clocks moved by the input: each record is `[op, …]`, `op % 8`:
 ///
-/// - 0, 1: a message of [`STREAM_IDS`] signed by a peer (`Signing::sign`, as the tests' peers
+/// - 0, 1: a message of `STREAM_IDS` signed by a peer (`Signing::sign`, as the tests' peers
 ///   sign) with the input's link id, ids, sequence number and timestamp (now ± 327 s, in
 ///   10 ms), with the key or (`op & 8`) another;
 /// - 2: any payload of any of those ids signed with the key (`sign_raw`), as a peer whose
