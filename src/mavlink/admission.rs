@@ -4,10 +4,16 @@
 //!
 //! - the kinds of message the core acts on ([`BridgeCore::handles`]): an autopilot's other
 //!   streams (attitude, GPS, …) and a ground station's joystick stay on the readers' thread;
-//! - from any system but the autopilot, at most [`BUDGET_PER_SECOND`] a second on average
-//!   (bursts of [`BURST`]), per system and link: enough for a ground station's parameter
-//!   download or a burst of commands, and a stranger's flood of valid frames costs the loop
-//!   that much and no more. The autopilot's messages on its own link always pass.
+//! - from any sender but the autopilot, at most [`BUDGET_PER_SECOND`] a second on average
+//!   (bursts of [`BURST`]), per system and component on each link: enough for a ground
+//!   station's parameter download or a burst of commands, and a stranger's flood of valid
+//!   frames costs the loop that much and no more. [`TRACKED`] senders have a budget each; a
+//!   sender silent for [`FORGET_AFTER`] gives its place to a new one, and the senders beyond
+//!   share one budget, so that ever new ids buy no more. The autopilot's messages on its own
+//!   link (once it is known: its HEARTBEAT, or the mapping's ids) always pass.
+//!
+//! Without signing, anyone may claim the autopilot's ids: the budget guards the loop's time
+//! against a flood of valid frames only where signing keeps strangers' frames out.
 //!
 //! Sans-IO: handed the messages, the autopilot's identity and the time.
 
@@ -20,8 +26,11 @@ use std::time::{Duration, Instant};
 pub const BUDGET_PER_SECOND: f64 = 100.0;
 /// As many at once, after a quiet spell.
 pub const BURST: f64 = 200.0;
-/// Systems with a budget of their own on one link; those beyond share one.
+/// Senders with a budget of their own on one link; those beyond share one.
 pub const TRACKED: usize = 16;
+/// A sender silent this long gives its budget's place to a new sender (its budget would be
+/// full again anyway).
+pub const FORGET_AFTER: Duration = Duration::from_secs(10);
 /// How often, at most, the messages dropped for want of budget are said.
 pub const SAY_EVERY: Duration = Duration::from_secs(10);
 
@@ -68,9 +77,9 @@ impl Bucket {
 #[derive(Debug)]
 pub struct Admission {
     link: LinkId,
-    /// Each system and component heard, with its bucket, least recently heard first out.
+    /// Each system and component heard, with its bucket (which knows when it was last used).
     buckets: Vec<((u8, u8), Bucket)>,
-    /// The bucket of the systems beyond [`TRACKED`].
+    /// The bucket of the senders beyond [`TRACKED`].
     shared: Bucket,
     dropped: u64,
     said: Option<(Instant, u64)>,
@@ -106,12 +115,20 @@ impl Admission {
         if self.link == AUTOPILOT_LINK && Some(from) == autopilot {
             return Verdict::Pass;
         }
-        let bucket = match self.buckets.iter().position(|(s, _)| *s == from) {
-            Some(i) => &mut self.buckets[i].1,
+        let slot = match self.buckets.iter().position(|(s, _)| *s == from) {
+            Some(i) => Some(i),
             None if self.buckets.len() < TRACKED => {
                 self.buckets.push((from, Bucket::full(now)));
-                &mut self.buckets.last_mut().expect("just pushed").1
+                Some(self.buckets.len() - 1)
             }
+            // The place of the sender silent longest, if it has been silent long enough.
+            None => (0..self.buckets.len())
+                .min_by_key(|&i| self.buckets[i].1.at)
+                .filter(|&i| now.saturating_duration_since(self.buckets[i].1.at) >= FORGET_AFTER)
+                .inspect(|&i| self.buckets[i] = (from, Bucket::full(now))),
+        };
+        let bucket = match slot {
+            Some(i) => &mut self.buckets[i].1,
             None => &mut self.shared,
         };
         if bucket.take(now) {
@@ -221,6 +238,38 @@ mod tests {
             })
             .count();
         assert_eq!(passed, BURST as usize);
+    }
+
+    #[test]
+    fn a_sender_silent_for_long_gives_its_place_to_a_new_one() {
+        let t0 = Instant::now();
+        let mut a = Admission::new(1, t0);
+        for system in 0..TRACKED as u8 {
+            a.judge(&header(100 + system, 1), &heartbeat(), None, t0);
+        }
+        // Use up the shared budget.
+        for _ in 0..1000 {
+            a.judge(&header(250, 1), &heartbeat(), None, t0);
+        }
+        let late = t0 + FORGET_AFTER;
+        // Systems 101.. speak again; system 100 stays silent and gives its place.
+        for system in 1..TRACKED as u8 {
+            a.judge(&header(100 + system, 1), &heartbeat(), None, late);
+        }
+        let passed = |a: &mut Admission, system: u8, at: Instant| {
+            (0..1000)
+                .filter(|_| a.judge(&header(system, 1), &heartbeat(), None, at) == Verdict::Pass)
+                .count()
+        };
+        assert_eq!(
+            passed(&mut a, 7, late),
+            BURST as usize,
+            "a budget of its own"
+        );
+        // Every place is taken by a sender heard within FORGET_AFTER: the next new ones share
+        // one budget (full again since t0), which the first of them uses up.
+        assert_eq!(passed(&mut a, 8, late), BURST as usize);
+        assert_eq!(passed(&mut a, 9, late), 0, "the same budget as system 8's");
     }
 
     #[test]
