@@ -1,13 +1,14 @@
 #!/bin/bash
-# The board's side of the board in a box: what an integrator types on the companion computer,
-# one request at a time.
+# The computer's side of the board in a box: what an integrator types on the companion
+# computer, one request at a time.
 #
 # board-agent (in the image) mounts the payload disk (this script, the packages) read-only on
-# /run/lj9da-board and runs `guest.sh agent`: it reads requests `ID COMMAND ARGS…` from the
-# virtio port "control" and writes each one's output between `@@BEGIN ID COMMAND` and
-# `@@END ID EXIT-STATUS` to the virtio port "results", which the host keeps as a file. Every
-# request is bounded by a timeout. The host (host.py) judges what is printed here: the commands
-# print what they read, with `KEY=value` lines where a figure is wanted.
+# /run/lj9da-board (a container has it bound there) and runs `guest.sh agent`: it reads requests
+# `ID COMMAND ARGS…` from "control" and writes each one's output between `@@BEGIN ID COMMAND`
+# and `@@END ID EXIT-STATUS` to "results", which the host keeps as a file: the board's virtio
+# ports, or in a container a FIFO and a file bound in (place.env says). Every request is bounded
+# by a timeout. The host (host.py) judges what is printed here: the commands print what they
+# read, with `KEY=value` lines where a figure is wanted.
 set -euo pipefail
 
 payload=/run/lj9da-board
@@ -15,10 +16,22 @@ conffile=/etc/lj9da-bridge/bridge.toml
 records=/var/lib/lj9da-bridge/records
 dropin_dir=/etc/systemd/system/lj9da-bridge.service.d
 unit=lj9da-bridge.service
+# The board's wiring; a container's place.env (written by `run`) replaces it.
+place=board
 usb_tty=ttyUSB0
 uart=/dev/ttyAMA0
-# The reply allowance of both buses in the mapping file (see `mapping`).
+usb=""
+autopilot_port=14560
+gcs_port=14561
+control=/dev/virtio-ports/control
+results=/dev/virtio-ports/results
+# shellcheck source=/dev/null
+[ ! -f "$payload/place.env" ] || . "$payload/place.env"
+# The reply allowance of both buses in the mapping file (see `mapping`): under TCG a reply
+# reaches the bridge tens of milliseconds after the servo sent it; in the container the servos
+# are lj9da-sim on pseudo-terminals, which `sitl` gives 20 ms.
 turnaround_ms=50
+[ "$place" = board ] || turnaround_ms=20
 
 say() { printf '%s\n' "$*"; }
 main_pid() { systemctl show -p MainPID --value "$unit"; }
@@ -112,12 +125,24 @@ cmd_install() {
 }
 
 # The mapping file: bus "uart" on the PL011 in RS485 mode, bus "usb" on the USB adapter by its
-# by-id name, the autopilot and a ground station on UDP ports that the host forwards.
+# by-id name, the autopilot and a ground station on UDP ports that the host forwards. In a
+# container both buses are pseudo-terminals (no RS485 mode, no by-id name), which the unit's
+# device list does not name: a drop-in adds them, as docs/packaging.md says for a port of
+# another driver.
 cmd_configure() {
-    local by_id
-    by_id=$(usb_by_id) || { say "no /dev/serial/by-id/ link to /dev/$usb_tty"; return 1; }
-    say "USB_BY_ID=$by_id"
-    mapping "$by_id" "rs485 = { rts_on_send = true }" "" >"$conffile.new"
+    local by_id uart_rs485="rs485 = { rts_on_send = true }"
+    if [ "$place" = board ]; then
+        by_id=$(usb_by_id) || { say "no /dev/serial/by-id/ link to /dev/$usb_tty"; return 1; }
+        say "USB_BY_ID=$by_id"
+    else
+        by_id=$usb uart_rs485=""
+        mkdir -p "$dropin_dir"
+        printf '[Service]\n# The buses are pseudo-terminals (lj9da-sim).\nDeviceAllow=char-pts rw\n' \
+            >"$dropin_dir/pseudo-terminals.conf"
+        systemctl daemon-reload
+        say "USB_BY_ID=$by_id (a pseudo-terminal; drop-in $dropin_dir/pseudo-terminals.conf)"
+    fi
+    mapping "$by_id" "$uart_rs485" "" >"$conffile.new"
     chown --reference="$conffile" "$conffile.new"
     chmod --reference="$conffile" "$conffile.new"
     mv "$conffile.new" "$conffile"
@@ -127,16 +152,20 @@ cmd_configure() {
 # mapping BY_ID UART_RS485 USB_RS485 [CONNECTION]: the board's mapping file on stdout, with the
 # given `rs485 = …` lines (or none) on the buses.
 mapping() {
-    local by_id=$1 uart_rs485=$2 usb_rs485=$3 connection=${4:-udpin:0.0.0.0:14560}
+    local by_id=$1 uart_rs485=$2 usb_rs485=$3 connection=${4:-udpin:0.0.0.0:$autopilot_port}
     cat <<EOF
-# The board in a box: a PL011 UART board with its transceiver's DE on RTS (bus "uart") and a
-# USB–RS485 adapter (bus "usb"), two servos each; the autopilot and a ground station on UDP.
-# The emulated board (QEMU, TCG) hands a reply to the bridge tens of milliseconds after the
-# servo sent it: each bus allows $turnaround_ms ms for that (a real adapter needs the default).
+# The board in a box ($place): a PL011 UART board with its transceiver's DE on RTS (bus "uart")
+# and a USB–RS485 adapter (bus "usb"), two servos each; the autopilot and a ground station on
+# UDP. The emulated board (QEMU, TCG) hands a reply to the bridge tens of milliseconds after
+# the servo sent it, the simulated servos on a container's pseudo-terminals a few: each bus
+# allows $turnaround_ms ms for that (a real adapter needs the default).
 [mavlink]
 connection = "$connection"
-gcs = "udpin:0.0.0.0:14561"
+gcs = "udpin:0.0.0.0:$gcs_port"
 output_rate_hz = 50.0
+# The autopilot's id, known before its first HEARTBEAT: a restarted bridge obeys its outputs at
+# once instead of up to a second later.
+system_id = 1
 
 [telemetry]
 esc_index_base = 0
@@ -299,19 +328,41 @@ cmd_hang() {
     cmd_status
 }
 
+# The computer's clock, to place its flight records on the host's.
+cmd_clock() { say "CLOCK=$(date +%s.%N)"; }
+
+# Every flight record: its name, the run's start (seconds since 1970, UTC), its last sample's
+# time from that start, and how it ended (the summary's words, joined by _), then the summary's
+# first line and its notes.
+cmd_records() {
+    local f head start state last
+    for f in "$records"/*.lj9rec; do
+        [ -e "$f" ] || continue
+        # The whole summary is read: a reader that stops early would cut the writer's pipe.
+        head=$(lj9da-bridge record summary "$f" 2>/dev/null | sed -n '/^run started /p')
+        start=$(sed -n 's/^run started \([0-9-]* [0-9:.]*\) UTC.*/\1/p' <<<"$head")
+        state=${head##*records, }
+        last=$(lj9da-bridge record csv "$f" 2>/dev/null | awk -F, 'NR > 1 && $1 + 0 > m { m = $1 + 0 } END { printf "%.6f", m }')
+        say "RECORD $(basename "$f") START=$(date -u -d "$start UTC" +%s.%N 2>/dev/null || echo unknown) LAST=$last STATE=${state// /_}"
+        say "  $head"
+        lj9da-bridge record summary "$f" 2>&1 >/dev/null | sed 's/^/  /'
+    done
+}
+
 cmd_poweroff() {
     sync
     systemctl poweroff --no-block 2>&1 || true
 }
 
 agent() {
-    local control=/dev/virtio-ports/control results=/dev/virtio-ports/results i=0
+    local i=0
     until [ -e "$control" ] && [ -e "$results" ]; do
         i=$((i + 1))
-        [ $i -le 120 ] || { echo "guest.sh: no virtio ports control/results" >&2; exit 1; }
+        [ $i -le 120 ] || { echo "guest.sh: no ports $control, $results" >&2; exit 1; }
         sleep 0.5
     done
-    exec 3<"$control" 4>"$results"
+    # Appended: after a power cut and a boot the host reads on where it stopped.
+    exec 3<"$control" 4>>"$results"
     say "@@READY $(date -u +%FT%T.%NZ)" >&4
     local line id
     while IFS= read -r line <&3; do
@@ -330,7 +381,7 @@ agent() {
 case ${1:-} in
 agent) agent ;;
 ping | probe | facts | install | configure | check | enable | status | journal | ports | latency | rs485 | \
-    security | features | upgrade | kill | hang | poweroff)
+    security | features | upgrade | kill | hang | clock | records | poweroff)
     command=$1
     shift
     "cmd_$command" "$@"
