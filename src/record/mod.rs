@@ -4,7 +4,7 @@
 //! health or stall change and every event (STATUSTEXT, bus events) is appended to one file
 //! per run, in the compact, versioned, CRC-checked format of [`format`](mod@format). Recording never
 //! blocks the bus or MAVLink paths and never loses a record silently; a crash or a power cut
-//! loses at most the last ~0.5 s, and a file cut anywhere reads back up to its last whole
+//! loses at most the last ~0.3 s, and a file cut anywhere reads back up to its last whole
 //! record. Old files are deleted, oldest first, to keep a configured total size.
 //!
 //! One file per idea:

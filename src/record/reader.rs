@@ -164,7 +164,7 @@ pub fn scan_bytes(bytes: &[u8], mut on_record: impl FnMut(Record)) -> Result<Sca
         None => {
             notes.push(
                 "the file has no end record: the bridge stopped without closing it (crash, \
-                 kill or power loss); up to the last second before the stop may be missing"
+                 kill or power loss); up to the last ~0.3 s before the stop may be missing"
                     .to_string(),
             );
             false
