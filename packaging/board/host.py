@@ -205,11 +205,14 @@ class Guest:
         elif self.current is not None:
             self.blocks[self.current]["lines"].append(line)
 
-    def wait_ready(self, timeout):
+    def wait_ready(self, timeout, alive=lambda: True):
+        """Until the agent says it is ready; `alive` tells whether the computer still runs."""
         deadline = time.monotonic() + timeout
         while self.ready_at is None:
             if time.monotonic() > deadline:
                 raise GuestError(f"the computer's agent did not report within {timeout} s")
+            if not alive():
+                raise GuestError("the computer stopped before its agent was ready")
             self._read()
             time.sleep(0.1)
         return self.ready_at
@@ -508,6 +511,24 @@ class Board:
         self.devices_of = ({"uart": "/dev/ttyAMA0", "usb": "/dev/ttyUSB0"} if self.place == "board"
                            else {"uart": "/dev/lj9da-uart", "usb": "/dev/lj9da-usb"})
 
+    def alive(self):
+        """Whether the computer's process (QEMU, or systemd-nspawn's `timeout`) still runs."""
+        try:
+            with open(os.path.join(self.args.run_dir, "machine.pid")) as f:
+                os.kill(int(f.read().strip()), 0)
+            return True
+        except (OSError, ValueError):
+            return False
+
+    def console_tail(self):
+        """The console's last line that says something, for an error."""
+        try:
+            with open(os.path.join(self.args.run_dir, "console.log"), errors="replace") as f:
+                lines = [l.strip() for l in f.read().splitlines() if l.strip()]
+            return lines[-1] if lines else "(the console is empty)"
+        except OSError:
+            return "(no console log)"
+
     def kernel_side(self, name):
         """In the container, a check of the kernel's drivers is skipped: the board has them."""
         if self.place == "board":
@@ -524,8 +545,11 @@ class Board:
     def boot(self):
         r = self.report
         with r.phase(f"boot ({self.place} start → agent ready)"):
-            self.guest = Guest(self.args.control, self.args.results, r)
-            ready = self.guest.wait_ready(self.args.boot_timeout)
+            try:
+                self.guest = Guest(self.args.control, self.args.results, r)
+                ready = self.guest.wait_ready(self.args.boot_timeout, self.alive)
+            except GuestError as e:
+                raise GuestError(f"{e}; the console's last line: {self.console_tail()}") from None
             r.check("boot", True, f"agent ready {ready - self.args.machine_started:.1f} s after the {self.place} started")
             rid, sent = self.guest.send("ping")
             self.guest.wait(rid, 30)
@@ -971,7 +995,7 @@ class Board:
                 booted = time.time()
                 subprocess.run([*machine, "boot", self.args.run_dir], check=True)
                 self.guest.connect(60)
-                ready = self.guest.wait_ready(self.args.boot_timeout)
+                ready = self.guest.wait_ready(self.args.boot_timeout, self.alive)
                 deadline = time.monotonic() + timeout
                 recovered = {}
                 while time.monotonic() < deadline and len(recovered) < len(BUSES):
@@ -1076,7 +1100,7 @@ def main():
     p.add_argument("--boot-timeout", type=float, default=240)
     p.add_argument("--drive-seconds", type=float, default=20)
     p.add_argument("--fault-runs", type=int, default=3)
-    p.add_argument("--cut-runs", type=int, default=3, help="power cuts, each with a boot")
+    p.add_argument("--cut-runs", type=int, help="power cuts, each with a boot (default: --fault-runs)")
     p.add_argument("--hogs", type=int, default=0, help="busy loops `run` keeps beside it all (for the report)")
     p.add_argument("--hang-after", type=float, default=8)
     p.add_argument("--out", required=True, help="folder for the results")
@@ -1098,7 +1122,7 @@ def main():
             board.rs485_refusal()
             board.upgrade()
             board.faults()
-            board.power_cut(args.cut_runs)
+            board.power_cut(args.cut_runs or args.fault_runs)
             board.final_audit()
     except GuestError as e:
         r.check("the board answered", False, str(e))
