@@ -17,7 +17,7 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 use tempdir::TempDir;
 
-/// The watchdog timeout the tests ask for: pings every 500 ms.
+/// The watchdog timeout the tests ask for: pings every 250 ms.
 const WATCHDOG: Duration = Duration::from_secs(1);
 
 /// What came from the bridge, in the order the test took it, each with when.

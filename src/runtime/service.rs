@@ -5,10 +5,13 @@
 //!   to open its port (opened it, or found it missing: a bridge without its adapter still
 //!   serves the other buses, and keeps trying). A start that has not got that far in
 //!   [`READY_WAIT`] says which bus it waited for, and is ready all the same.
-//! - `WATCHDOG=1` every half watchdog timeout, from the main loop itself, and only while every
-//!   bus thread has turned since the last ping ([`crate::bus::BusHandle::turns`]). A stuck loop
-//!   sends nothing; a stuck bus thread stops the pings as surely. systemd then kills the bridge
-//!   and starts it again (see [`crate::deploy::systemd_unit`]).
+//! - `WATCHDOG=1` every quarter of the watchdog timeout, from the main loop itself, and only
+//!   while every bus thread has turned since the last look ([`crate::bus::BusHandle::turns`]).
+//!   A stuck loop sends nothing; a stuck bus thread stops the pings as surely. systemd then
+//!   kills the bridge and starts it again (see [`crate::deploy::systemd_unit`]). A bus thread
+//!   that hangs just after a look that saw it turn still earns the next look's ping, so the
+//!   kill comes at most a timeout and a quarter after the hang (at every half timeout, it would
+//!   be a timeout and a half); a stopped process, at most a timeout after it.
 //! - `STOPPING=1` when a stop begins.
 //!
 //! Outside systemd (no `NOTIFY_SOCKET`, no `WATCHDOG_USEC`) none of this does anything.
@@ -20,8 +23,11 @@ use std::time::{Duration, Instant};
 pub const READY_WAIT: Duration = Duration::from_secs(5);
 
 /// The shortest watchdog timeout that cannot restart a healthy bridge: a bus thread turns at
-/// least every 100 ms, and the pings go out every half timeout.
+/// least every 100 ms, and the looks (and pings) come every quarter timeout, 250 ms here.
 pub const SHORTEST_WATCHDOG: Duration = Duration::from_secs(1);
+
+/// Looks at the bus threads (each a ping if they all turned) per watchdog timeout.
+const LOOKS_PER_TIMEOUT: u32 = 4;
 
 /// Send `states` to systemd; a failure is logged (the service manager would then restart a
 /// bridge that runs: worth a line in the log, not a stop).
@@ -64,15 +70,15 @@ impl Watchdog {
         }
         tracing::info!(
             "systemd watchdog: {timeout:?}, pinged every {:?}",
-            timeout / 2
+            timeout / LOOKS_PER_TIMEOUT
         );
         Some(Self::new(timeout, turns, now))
     }
 
-    /// A watchdog of `timeout`, pinged every half of it, starting from the bus threads' turns
+    /// A watchdog of `timeout`, pinged every quarter of it, starting from the bus threads' turns
     /// `turns` at `now`.
     pub fn new(timeout: Duration, turns: Vec<u64>, now: Instant) -> Self {
-        let period = timeout / 2;
+        let period = timeout / LOOKS_PER_TIMEOUT;
         Watchdog {
             period,
             due: now + period,
@@ -133,33 +139,57 @@ mod tests {
     const TIMEOUT: Duration = Duration::from_secs(2);
 
     #[test]
-    fn a_ping_is_due_every_half_timeout_and_not_before() {
+    fn a_ping_is_due_every_quarter_timeout_and_not_before() {
         let t0 = Instant::now();
         let mut w = Watchdog::new(TIMEOUT, vec![1, 1], t0);
-        assert_eq!(w.due_at(), t0 + Duration::from_secs(1));
+        assert_eq!(w.due_at(), t0 + Duration::from_millis(500));
         assert_eq!(
-            w.check(t0 + Duration::from_millis(999), &[5, 5]),
+            w.check(t0 + Duration::from_millis(499), &[5, 5]),
             Verdict::NotDue
         );
         assert_eq!(
-            w.check(t0 + Duration::from_secs(1), &[5, 5]),
+            w.check(t0 + Duration::from_millis(500), &[5, 5]),
             Verdict::Alive
         );
-        assert_eq!(w.due_at(), t0 + Duration::from_secs(2));
+        assert_eq!(w.due_at(), t0 + Duration::from_secs(1));
     }
 
     #[test]
     fn a_bus_that_did_not_turn_since_the_last_look_stops_the_ping() {
         let t0 = Instant::now();
         let mut w = Watchdog::new(TIMEOUT, vec![1, 1, 1], t0);
-        let second = Duration::from_secs(1);
-        assert_eq!(w.check(t0 + second, &[9, 1, 4]), Verdict::Stuck(vec![1]));
+        let look = w.period();
+        assert_eq!(w.check(t0 + look, &[9, 1, 4]), Verdict::Stuck(vec![1]));
         // It turns again: pings again; another bus stands still.
-        assert_eq!(
-            w.check(t0 + 2 * second, &[9, 2, 8]),
-            Verdict::Stuck(vec![0])
+        assert_eq!(w.check(t0 + 2 * look, &[9, 2, 8]), Verdict::Stuck(vec![0]));
+        assert_eq!(w.check(t0 + 3 * look, &[10, 3, 9]), Verdict::Alive);
+    }
+
+    /// The worst case of a hang: the bus thread turns once more just after a look, then hangs.
+    /// The next look still sees that turn and pings; systemd kills the bridge a timeout after
+    /// that last ping. The kill must come within a timeout and a quarter of the hang.
+    #[test]
+    fn a_hung_bus_thread_is_killed_within_a_timeout_and_a_quarter() {
+        let t0 = Instant::now();
+        let mut w = Watchdog::new(TIMEOUT, vec![0], t0);
+        let step = Duration::from_millis(10);
+        let hang = t0 + Duration::from_millis(2_010);
+        let (mut now, mut turns, mut last_ping) = (t0, 0, t0);
+        while now < hang + 2 * TIMEOUT {
+            now += step;
+            if now <= hang {
+                turns += 1;
+            }
+            if w.check(now, &[turns]) == Verdict::Alive {
+                last_ping = now;
+            }
+        }
+        let killed = last_ping + TIMEOUT;
+        assert!(
+            killed - hang <= TIMEOUT + TIMEOUT / 4,
+            "killed {:?} after the hang (timeout {TIMEOUT:?})",
+            killed - hang
         );
-        assert_eq!(w.check(t0 + 3 * second, &[10, 3, 9]), Verdict::Alive);
     }
 
     #[test]
