@@ -70,7 +70,9 @@
 //!   must outlast), and READY to the first ping apart; how many gaps exceeded 1.5 periods: the
 //!   bridge pings only when every bus thread has turned since its last look, so a gap is one
 //!   period, or two where a look found a bus not turned (the bridge's "bus thread stuck" lines,
-//!   which name the bus, are counted and repeated), or one and the loop's lateness. "NOT
+//!   which name the bus, are counted and repeated), or one and the loop's lateness; `late
+//!   pings`: each gap more than 10 ms over the period, with when it ended (after READY=1, and
+//!   on CLOCK_MONOTONIC as `E2E_TRACE_LATE` gives its goals). "NOT
 //!   announced" where the bridge's log lacks its "systemd watchdog: …" line (a build without
 //!   the watchdog, or a `WATCHDOG_PID` not its own). `E2E_WATCHDOG_MS=0`: no watchdog, the
 //!   bridge started as before.

@@ -189,6 +189,20 @@ fn watchdog_line(w: &Pings) {
             "; NOT announced: no \"systemd watchdog: …\" line in the bridge's log"
         },
     );
+    if !w.late.is_empty() {
+        let listed: Vec<String> = w
+            .late
+            .iter()
+            .take(8)
+            .map(|(ms, after, mono)| format!("{ms:.1} ms ending +{after:.1} s (mono {mono:.3})"))
+            .collect();
+        println!(
+            "    late pings (gap over {} ms): {}{}",
+            (period + super::watchdog::LATE).as_millis(),
+            listed.join(", "),
+            if w.late.len() > 8 { ", …" } else { "" }
+        );
+    }
     for line in &w.stuck {
         println!("    bridge: {line}");
     }

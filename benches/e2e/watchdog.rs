@@ -12,6 +12,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+/// A gap longer than the period by more than this is listed with when it ended: the loop's
+/// usual lateness is about 1 ms a ping (its timer's resolution).
+pub(super) const LATE: Duration = Duration::from_millis(10);
+
 /// The watchdog timeout the bench asks of the bridge: `$E2E_WATCHDOG_MS`, default 1000 ms
 /// (pings every 500 ms; the bridge warns below 1 s); `0`: none, the bridge as before this
 /// measure (no `NOTIFY_SOCKET`).
@@ -128,6 +132,20 @@ impl Listener {
             .windows(2)
             .map(|w| w[1].saturating_duration_since(w[0]).as_secs_f64() * 1e3)
             .collect();
+        // Gaps more than LATE over the period, by when they ended: after READY=1, and on
+        // CLOCK_MONOTONIC to line them up with `E2E_TRACE_LATE`'s goals.
+        let (now, mono) = (Instant::now(), super::monotonic_now());
+        let late: Vec<(f64, f64, f64)> = marks
+            .windows(2)
+            .filter(|w| w[1].saturating_duration_since(w[0]) > period + LATE)
+            .map(|w| {
+                (
+                    w[1].saturating_duration_since(w[0]).as_secs_f64() * 1e3,
+                    w[1].saturating_duration_since(marks[0]).as_secs_f64(),
+                    mono - now.saturating_duration_since(w[1]).as_secs_f64(),
+                )
+            })
+            .collect();
         let first_ms = heard
             .ready
             .and_then(|_| gaps_ms.first().copied())
@@ -144,6 +162,7 @@ impl Listener {
             gap_max_ms: gaps_ms.last().copied().unwrap_or(f64::NAN),
             gaps: gaps_ms.len(),
             over_1_5: over,
+            late,
             announced,
             stuck,
         }
@@ -164,6 +183,9 @@ pub(super) struct Pings {
     pub(super) gaps: usize,
     /// Gaps longer than 1.5 periods (half the timeout): a look that found a bus not turned.
     pub(super) over_1_5: usize,
+    /// The gaps more than [`LATE`] over the period: (ms, s after READY=1 at its end,
+    /// CLOCK_MONOTONIC at its end).
+    pub(super) late: Vec<(f64, f64, f64)>,
     /// The bridge's "systemd watchdog: …, pinged every …" line, if it said it.
     pub(super) announced: Option<String>,
     /// The bridge's "bus thread stuck" lines.
