@@ -58,7 +58,24 @@
 //! - talk-overs (a packet written while a servo replied; "(N sim)": of them, N where the
 //!   simulator read a packet together with a request before it, i.e. its thread was not run for
 //!   the reply allowance while the bridge timed the first out) and STATUSTEXTs of severity WARNING or
-//!   worse heard by the ground station (none is true of healthy simulated servos).
+//!   worse heard by the ground station (none is true of healthy simulated servos);
+//! - on a third line, the bridge's only: systemd's watchdog as the bench, in systemd's place,
+//!   saw it. The bench binds a Unix datagram socket of its own and starts the bridge as
+//!   systemd would (`NOTIFY_SOCKET`, `WATCHDOG_USEC` for `E2E_WATCHDOG_MS`, default 1000 ms,
+//!   and `WATCHDOG_PID`, the bridge's own pid, through `sh -c 'export WATCHDOG_PID=$$; exec
+//!   …'`); a thread at the sender's priority notes when each `READY=1` and `WATCHDOG=1` came,
+//!   from the start to the stop (warm-up included). `watchdog T ms (pinged every T/2 ms)`: how
+//!   many pings; the gaps from READY=1 (which arms systemd's timer) to the first ping and
+//!   between consecutive pings, p50 and `longest` in ms (the longest is what `WatchdogSec=`
+//!   must outlast), and READY to the first ping apart; how many gaps exceeded 1.5 periods: the
+//!   bridge pings only when every bus thread has turned since its last look, so a gap is one
+//!   period, or two where a look found a bus not turned (the bridge's "bus thread stuck" lines,
+//!   which name the bus, are counted and repeated), or one and the loop's lateness; `late
+//!   pings`: each gap more than 10 ms over the period, with when it ended (after READY=1, and
+//!   on CLOCK_MONOTONIC as `E2E_TRACE_LATE` gives its goals). "NOT
+//!   announced" where the bridge's log lacks its "systemd watchdog: …" line (a build without
+//!   the watchdog, or a `WATCHDOG_PID` not its own). `E2E_WATCHDOG_MS=0`: no watchdog, the
+//!   bridge started as before.
 //!
 //! The naive peer's lines carry its name after the case's, with `n/a` for what it has no figure
 //! of: it sends its telemetry and STATUSTEXTs to the autopilot's address only (no ground
@@ -89,6 +106,8 @@ mod machine;
 mod python;
 #[path = "e2e/report.rs"]
 mod report;
+#[path = "e2e/watchdog.rs"]
+mod watchdog;
 
 use cases::{Case, Jitter, Scenario, Send, outputs, pwm, schedule};
 use lj9da_bridge::config::Config;
@@ -103,6 +122,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
+use watchdog::{Listener, Pings};
 
 /// The sender's real-time priority: above the bridge's bus threads and the simulator's.
 const SENDER_PRIORITY: i32 = lj9da_bridge::bus::driver::REALTIME_PRIORITY + 10;
@@ -248,6 +268,8 @@ struct Outcome {
     /// Of them, those the simulator's starved thread caused (see `starved` in `run_case`).
     collisions_sim_starved: usize,
     alarms: Vec<String>,
+    /// The watchdog's pings the bench heard as systemd (the bridge under `$E2E_WATCHDOG_MS`).
+    watchdog: Option<Pings>,
 }
 
 fn free_udp_port() -> u16 {
@@ -322,12 +344,21 @@ fn run_case(case: &Case, seconds: f64, peer: &Peer) -> Outcome {
     let markers = [config.servos[0].clone(), config.servos[marked - 1].clone()];
     let goal_of =
         |port: usize, us: u16| markers[port].map_pwm(us).expect("bench PWM is in range").0;
+    // The bridge runs as systemd's child with a watchdog (`$E2E_WATCHDOG_MS`), the bench
+    // playing systemd: its notify socket hears the pings.
+    let mut systemd = match peer {
+        Peer::Bridge => watchdog::timeout().map(|t| Listener::start(&dir, t)),
+        Peer::Naive { .. } => None,
+    };
     let mut command = match peer {
-        Peer::Bridge => {
-            let mut c = Command::new(bridge_exe());
-            c.env("RUST_LOG", "warn");
-            c
-        }
+        Peer::Bridge => match &systemd {
+            Some(listener) => listener.command(&dir, &bridge_exe()),
+            None => {
+                let mut c = Command::new(bridge_exe());
+                c.env("RUST_LOG", "warn");
+                c
+            }
+        },
         Peer::Naive { python, script } => {
             let mut c = Command::new(python);
             c.arg(script);
@@ -338,10 +369,19 @@ fn run_case(case: &Case, seconds: f64, peer: &Peer) -> Outcome {
         .args(["run", "--config"])
         .arg(&cfg_path)
         .stdout(Stdio::null())
-        .stderr(Stdio::inherit())
+        .stderr(if systemd.is_some() {
+            Stdio::piped()
+        } else {
+            Stdio::inherit()
+        })
         .spawn()
         .unwrap_or_else(|e| panic!("{} process: {e}", peer.name()));
+    // Under the watchdog's `sh -c … exec` this is the shell's pid, the bridge's once it has
+    // exec'd (long before the warm-up ends).
     let pid = bridge.id();
+    if let (Some(listener), Some(stderr)) = (systemd.as_mut(), bridge.stderr.take()) {
+        listener.watch_log(stderr);
+    }
 
     let gcs = mavlink::connect::<MavMessage>(&format!("udpin:127.0.0.1:{gcs_port}")).unwrap();
     let gcs_thread = std::thread::spawn(move || {
@@ -684,6 +724,7 @@ fn run_case(case: &Case, seconds: f64, peer: &Peer) -> Outcome {
     gaps.sort();
     let bunched = gaps.get(gaps.len() / 2).is_some_and(|g| *g < spacing / 3);
     stop(&mut bridge);
+    let watchdog = systemd.map(Listener::finish);
     let (telemetry, since_first, alarms) = gcs_thread.join().unwrap();
     let telemetry_hz = since_first
         .map(|d| telemetry as f64 / d.as_secs_f64())
@@ -735,6 +776,7 @@ fn run_case(case: &Case, seconds: f64, peer: &Peer) -> Outcome {
             })
             .count(),
         alarms,
+        watchdog,
     }
 }
 
@@ -772,6 +814,14 @@ fn main() {
         "machine: {cpu}, {cores} cores; {seconds} s per case (at least 8–10 s for steps, gap, rate)"
     );
     println!("bridge: {}", bridge_exe().to_string_lossy());
+    match watchdog::timeout() {
+        Some(t) => println!(
+            "watchdog: the bench plays systemd, WATCHDOG_USEC for {} ms (E2E_WATCHDOG_MS; 0: none), the bridge pings every {} ms",
+            t.as_millis(),
+            (t / 2).as_millis()
+        ),
+        None => println!("watchdog: none (E2E_WATCHDOG_MS=0)"),
+    }
     let peers = peers();
     for peer in &peers {
         if let Peer::Naive { python, script } = peer {
@@ -898,6 +948,12 @@ fn main() {
     println!(
         "behind: measured messages sent while a request and its reply held the wire; polls: position-and-current reads per servo per second; s1 ok: servo 1's good replies per second; settled: port 0 p50/p90 of the steps 1 s or more after a disturbance began or ended"
     );
+    if let Some(t) = watchdog::timeout() {
+        println!(
+            "watchdog: READY=1 and WATCHDOG=1 as the bench's notify socket received them (monotonic clock), the process's whole life; gaps from READY=1 to the first ping and between pings; a gap over 1.5 periods ({} ms) is a look that found a bus not turned, or a late loop",
+            (t / 2 * 3 / 2).as_millis()
+        );
+    }
     println!(
         "targets (4 servos, 50 Hz, two ports): steps behind ≤ 10 % (20 % with hogs), p50/p90 ≤ 250/1000 µs (400/2000 with hogs); p1 p50 ≤ 400 (600); p0 p99 ≤ 1500 (3000), all p99 ≤ 2500 (4000); garbled s1 ok ≥ 70 % of the sweep's; polls ≥ 60 Hz (50); no talk-over, alarm or lost goal"
     );

@@ -1,7 +1,7 @@
 //! What the bench prints of a run: its two lines per peer, and the table that sets the bridge
 //! and another peer side by side.
 
-use super::{Case, Outcome, Peer};
+use super::{Case, Outcome, Peer, Pings};
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
     if sorted.is_empty() {
@@ -137,6 +137,9 @@ pub(super) fn report(case: &Case, peer: &Peer, mut o: Outcome) -> Figures {
             String::new()
         },
     );
+    if let Some(w) = &o.watchdog {
+        watchdog_line(w);
+    }
     for a in &o.alarms {
         println!("    alarm heard: {a}");
     }
@@ -147,6 +150,61 @@ pub(super) fn report(case: &Case, peer: &Peer, mut o: Outcome) -> Figures {
         all_p99: percentile(&all, 0.99),
         on_wire_percent,
         cpu_percent: o.cpu_percent,
+    }
+}
+
+/// The bridge's third line: the watchdog's pings as the bench, in systemd's place, heard them.
+fn watchdog_line(w: &Pings) {
+    let ms = |v: f64| {
+        if v.is_nan() {
+            "-".to_string()
+        } else {
+            format!("{v:.1}")
+        }
+    };
+    let period = w.timeout / 2;
+    println!(
+        "    watchdog {} ms (pinged every {} ms): {} pings{}; gaps from READY on: p50 {}, longest {} ms (READY to the first ping {} ms); {} of {} gaps over 1.5 periods ({} ms){}{}",
+        w.timeout.as_millis(),
+        period.as_millis(),
+        w.pings,
+        if w.ready { "" } else { ", no READY=1" },
+        ms(w.gap_p50_ms),
+        ms(w.gap_max_ms),
+        ms(w.first_ms),
+        w.over_1_5,
+        w.gaps,
+        (period * 3 / 2).as_millis(),
+        if w.stuck.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; the bridge named a stuck bus thread {} times",
+                w.stuck.len()
+            )
+        },
+        if w.announced.is_some() {
+            ""
+        } else {
+            "; NOT announced: no \"systemd watchdog: …\" line in the bridge's log"
+        },
+    );
+    if !w.late.is_empty() {
+        let listed: Vec<String> = w
+            .late
+            .iter()
+            .take(8)
+            .map(|(ms, after, mono)| format!("{ms:.1} ms ending +{after:.1} s (mono {mono:.3})"))
+            .collect();
+        println!(
+            "    late pings (gap over {} ms): {}{}",
+            (period + super::watchdog::LATE).as_millis(),
+            listed.join(", "),
+            if w.late.len() > 8 { ", …" } else { "" }
+        );
+    }
+    for line in &w.stuck {
+        println!("    bridge: {line}");
     }
 }
 
