@@ -21,7 +21,7 @@
 //! ports), logs to stderr, which journald keeps (`RUST_LOG` sets the detail), and stops cleanly
 //! on SIGTERM. It tells systemd when it is ready and feeds its watchdog while its main loop and
 //! every bus thread run ([`crate::runtime::service`]); whether it exits, is killed or hangs, it
-//! is started again within 200 ms of systemd noticing (a hang: after the 2 s watchdog). systemd
+//! is started again within 200 ms of systemd noticing (a hang: after the 1 s watchdog). systemd
 //! creates `/var/lib/lj9da-bridge` for it (`StateDirectory`); point the flight record folder
 //! there in the mapping file, since `/etc` is read-only for the service.
 //!
@@ -97,11 +97,13 @@ StartLimitBurst=100
 Type=notify
 NotifyAccess=main
 ExecStart={binary} run --config {config}
-# The bridge pings the watchdog every second, from its main loop and only while every bus
+# The bridge pings the watchdog every 250 ms, from its main loop and only while every bus
 # thread turns: a bridge that hangs (a deadlock, a write that never returns, a stopped
-# process) is killed after 2 s and started again 200 ms later. Meanwhile the servos hold the
-# last goal they were sent; the new process sends the autopilot's current outputs.
-WatchdogSec=2s
+# process) is killed within 1.25 s and started again 200 ms later. Meanwhile the servos hold
+# the last goal they were sent; the new process sends the autopilot's current outputs. 1 s
+# leaves a ping 750 ms to be late: 6.7 times the latest measured beside two busy loops (112 ms,
+# benches/README.md).
+WatchdogSec=1s
 WatchdogSignal=SIGKILL
 Restart=always
 RestartSec=200ms

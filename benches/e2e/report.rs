@@ -162,7 +162,7 @@ fn watchdog_line(w: &Pings) {
             format!("{v:.1}")
         }
     };
-    let period = w.timeout / 2;
+    let period = w.period;
     println!(
         "    watchdog {} ms (pinged every {} ms): {} pings{}; gaps from READY on: p50 {}, longest {} ms (READY to the first ping {} ms); {} of {} gaps over 1.5 periods ({} ms){}{}",
         w.timeout.as_millis(),

@@ -16,9 +16,9 @@ use std::time::{Duration, Instant};
 /// usual lateness is about 1 ms a ping (its timer's resolution).
 pub(super) const LATE: Duration = Duration::from_millis(10);
 
-/// The watchdog timeout the bench asks of the bridge: `$E2E_WATCHDOG_MS`, default 1000 ms
-/// (pings every 500 ms; the bridge warns below 1 s); `0`: none, the bridge as before this
-/// measure (no `NOTIFY_SOCKET`).
+/// The watchdog timeout the bench asks of the bridge: `$E2E_WATCHDOG_MS`, default 1000 ms (the
+/// bridge warns below 1 s, and says how often it pings: a quarter of it from `49107e8`, half
+/// before); `0`: none, the bridge as before this measure (no `NOTIFY_SOCKET`).
 pub(super) fn timeout() -> Option<Duration> {
     let ms: u64 = std::env::var("E2E_WATCHDOG_MS")
         .map(|s| {
@@ -125,7 +125,11 @@ impl Listener {
         self.stop.store(true, Ordering::Relaxed);
         let heard = self.socket.join().unwrap_or_default();
         let (announced, stuck) = self.log.and_then(|l| l.join().ok()).unwrap_or_default();
-        let period = self.timeout / 2;
+        // The period as the bridge said it; a build that did not say it pinged every half.
+        let period = announced
+            .as_deref()
+            .and_then(said_period)
+            .unwrap_or(self.timeout / 2);
         // From READY=1 (it arms systemd's watchdog) to the first ping, then ping to ping.
         let marks: Vec<Instant> = heard.ready.into_iter().chain(heard.pings.clone()).collect();
         let mut gaps_ms: Vec<f64> = marks
@@ -155,6 +159,7 @@ impl Listener {
         gaps_ms.sort_by(f64::total_cmp);
         Pings {
             timeout: self.timeout,
+            period,
             ready: heard.ready.is_some(),
             pings: heard.pings.len(),
             first_ms,
@@ -172,6 +177,8 @@ impl Listener {
 /// One run's pings (see [`Listener::finish`]).
 pub(super) struct Pings {
     pub(super) timeout: Duration,
+    /// Between two pings, as the bridge said it.
+    pub(super) period: Duration,
     /// Whether `READY=1` came.
     pub(super) ready: bool,
     pub(super) pings: usize,
@@ -181,7 +188,7 @@ pub(super) struct Pings {
     pub(super) gap_p50_ms: f64,
     pub(super) gap_max_ms: f64,
     pub(super) gaps: usize,
-    /// Gaps longer than 1.5 periods (half the timeout): a look that found a bus not turned.
+    /// Gaps longer than 1.5 periods: a look that found a bus not turned, or a late loop.
     pub(super) over_1_5: usize,
     /// The gaps more than [`LATE`] over the period: (ms, s after READY=1 at its end,
     /// CLOCK_MONOTONIC at its end).
@@ -190,4 +197,26 @@ pub(super) struct Pings {
     pub(super) announced: Option<String>,
     /// The bridge's "bus thread stuck" lines.
     pub(super) stuck: Vec<String>,
+}
+
+/// The period in the bridge's "systemd watchdog: 1s, pinged every 250ms" (a `Duration`'s
+/// debug form: `250ms`, `1s`, `1.5s`, `750µs`).
+fn said_period(line: &str) -> Option<Duration> {
+    let text = line
+        .split("pinged every ")
+        .nth(1)?
+        .split_whitespace()
+        .next()?;
+    let text = text.trim_end_matches(|c: char| !c.is_alphanumeric());
+    let split = text.find(|c: char| !(c.is_ascii_digit() || c == '.'))?;
+    let (number, unit) = text.split_at(split);
+    let number: f64 = number.parse().ok()?;
+    let scale = match unit {
+        "s" => 1.0,
+        "ms" => 1e-3,
+        "µs" | "us" => 1e-6,
+        "ns" => 1e-9,
+        _ => return None,
+    };
+    Some(Duration::from_secs_f64(number * scale))
 }
