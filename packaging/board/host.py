@@ -1134,6 +1134,9 @@ def main():
             board.faults()
             board.power_cut(args.cut_runs or args.fault_runs)
             board.final_audit()
+            # The service's whole journal (every start, ready and first goal), for the times.
+            status, lines = board.guest.run("journal")
+            board.report.write("journal-end.txt", "\n".join(lines) + "\n")
     except GuestError as e:
         r.check("the board answered", False, str(e))
     finally:
