@@ -684,3 +684,35 @@ fn summary_and_trend_agree_on_the_figures_they_share() {
         assert!(f.alarms > 0, "{name}: {f:?}");
     }
 }
+
+/// `lj9da-bridge record … | head`: a reader that has gone before the command writes is no
+/// error, for every command that prints to stdout. (A `print!` panics there: exit 101 and a
+/// backtrace on stderr.)
+#[test]
+fn a_reader_that_stopped_reading_is_no_error() {
+    let fixture = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/src/record/fixtures/x86_64.lj9rec"
+    );
+    for args in [
+        vec!["summary", fixture],
+        vec!["csv", fixture],
+        vec!["trend", fixture],
+    ] {
+        let (reader, writer) = std::io::pipe().unwrap();
+        drop(reader);
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
+            .arg("record")
+            .args(&args)
+            .stdout(writer)
+            .stderr(std::process::Stdio::piped())
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            out.status.success() && !stderr.contains("panicked"),
+            "record {args:?}: {}\n{stderr}",
+            out.status
+        );
+    }
+}

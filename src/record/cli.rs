@@ -63,6 +63,21 @@ pub enum RecordCommand {
     },
 }
 
+/// Write `text` to stdout. A reader that stopped early (`| head`) is no error: what it did not
+/// read is left unwritten, quietly, where `print!` would panic.
+fn print_out(text: &str) -> ExitCode {
+    let stdout = std::io::stdout();
+    let mut lock = stdout.lock();
+    match lock.write_all(text.as_bytes()).and_then(|()| lock.flush()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: cannot write to stdout: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
 fn load(file: &Path) -> Result<Recording, ExitCode> {
     match read_record(file) {
         Ok(rec) => {
@@ -86,9 +101,7 @@ pub fn run(cmd: RecordCommand) -> ExitCode {
                 Ok(rec) => rec,
                 Err(code) => return code,
             };
-            println!("{}", file.display());
-            print!("{}", summary(&rec));
-            ExitCode::SUCCESS
+            print_out(&format!("{}\n{}", file.display(), summary(&rec)))
         }
         RecordCommand::Plot { file, out } => {
             let rec = match load(&file) {
@@ -102,12 +115,12 @@ pub fn run(cmd: RecordCommand) -> ExitCode {
             match plot(&rec, &out, &stem)
                 .and_then(|files| Ok([files, vec![write_page(&rec, &out, &stem)?]].concat()))
             {
-                Ok(files) => {
-                    for f in files {
-                        println!("{}", f.display());
-                    }
-                    ExitCode::SUCCESS
-                }
+                Ok(files) => print_out(
+                    &files
+                        .iter()
+                        .map(|f| format!("{}\n", f.display()))
+                        .collect::<String>(),
+                ),
                 Err(e) => {
                     eprintln!(
                         "error: cannot write the pictures into {}: {e}",
@@ -183,15 +196,9 @@ fn run_trend(paths: &[PathBuf], json: bool, since: &[Since], html: Option<&Path>
     } else {
         found.to_string()
     };
-    let stdout = std::io::stdout();
-    let mut lock = stdout.lock();
-    match lock.write_all(text.as_bytes()).and_then(|()| lock.flush()) {
-        Ok(()) => {}
-        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {}
-        Err(e) => {
-            eprintln!("error: cannot write to stdout: {e}");
-            return ExitCode::FAILURE;
-        }
+    let printed = print_out(&text);
+    if printed != ExitCode::SUCCESS {
+        return printed;
     }
     if let Some(page) = html {
         if let Err(e) = write_trend_page(&found, page) {
