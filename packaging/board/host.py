@@ -138,11 +138,15 @@ class GuestError(Exception):
     pass
 
 
+class BootError(GuestError):
+    """The computer did not come up: this host cannot run it (exit 2, as a set-up failure)."""
+
+
 class Guest:
     """Requests to guest.sh: one line on the control port, the answer between markers in the
     results file."""
 
-    def __init__(self, control_path, results_path, report):
+    def __init__(self, control_path, results_path, report, alive=lambda: True):
         self.report = report
         self.control_path = control_path
         self.results_path = results_path
@@ -152,9 +156,9 @@ class Guest:
         self.current = None  # the request whose output is being read
         self.next_id = 1
         self.control = None
-        self.connect(30)
+        self.connect(30, alive)
 
-    def connect(self, timeout):
+    def connect(self, timeout, alive=lambda: True):
         """Open "control": QEMU's socket of the board's virtio port, or the container's FIFO
         (which opens once the agent reads it). Again after the computer was cut and booted."""
         if self.control is not None:
@@ -177,6 +181,8 @@ class Guest:
             except OSError:
                 if time.monotonic() > deadline:
                     raise GuestError(f"cannot open the agent's control port {self.control_path}")
+                if not alive():
+                    raise GuestError("the computer stopped before its agent listened")
                 time.sleep(0.05)
 
     def _read(self):
@@ -546,10 +552,11 @@ class Board:
         r = self.report
         with r.phase(f"boot ({self.place} start → agent ready)"):
             try:
-                self.guest = Guest(self.args.control, self.args.results, r)
+                self.guest = Guest(self.args.control, self.args.results, r, self.alive)
                 ready = self.guest.wait_ready(self.args.boot_timeout, self.alive)
             except GuestError as e:
-                raise GuestError(f"{e}; the console's last line: {self.console_tail()}") from None
+                raise BootError(f"the {self.place} did not come up: {e}; the console's last line: "
+                                f"{self.console_tail()}") from None
             r.check("boot", True, f"agent ready {ready - self.args.machine_started:.1f} s after the {self.place} started")
             rid, sent = self.guest.send("ping")
             self.guest.wait(rid, 30)
@@ -949,7 +956,7 @@ class Board:
         else:
             r.check("recovery after SIGSTOP (watchdog)", None,
                     f"NOT RUN: the installed unit has no watchdog (Type={v.get('Type')}, "
-                    f"WatchdogUSec={v.get('WatchdogUSec')}); it comes with the Type=notify change")
+                    f"WatchdogUSec={v.get('WatchdogUSec')}); it needs Type=notify and WatchdogSec")
         if watchdog and hang_switch:
             self.measure_hang("usb", self.args.hang_after, runs, bound=hang_bound)
         else:
@@ -1137,6 +1144,12 @@ def main():
             # The service's whole journal (every start, ready and first goal), for the times.
             status, lines = board.guest.run("journal")
             board.report.write("journal-end.txt", "\n".join(lines) + "\n")
+    except BootError as e:
+        # This host cannot run the computer (systemd-nspawn or QEMU could not boot it): a
+        # set-up failure, said in one line.
+        print(f"board: {e}", file=sys.stderr, flush=True)
+        r.summary()
+        sys.exit(2)
     except GuestError as e:
         r.check("the board answered", False, str(e))
     finally:
