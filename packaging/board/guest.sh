@@ -127,8 +127,8 @@ cmd_install() {
 # The mapping file: bus "uart" on the PL011 in RS485 mode, bus "usb" on the USB adapter by its
 # by-id name, the autopilot and a ground station on UDP ports that the host forwards. In a
 # container both buses are pseudo-terminals (no RS485 mode, no by-id name), which the unit's
-# device list does not name: a drop-in adds them, as docs/packaging.md says for a port of
-# another driver.
+# device list does not name: a drop-in adds them, as README.md's Troubleshooting says for a
+# port of another driver.
 cmd_configure() {
     local by_id uart_rs485="rs485 = { rts_on_send = true }"
     if [ "$place" = board ]; then

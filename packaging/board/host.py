@@ -249,6 +249,14 @@ class Guest:
         return status, lines
 
 
+def number(text):
+    """A figure the computer printed, or infinity where it printed none ("unknown")."""
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return float("inf")
+
+
 def parse_usec(text):
     """systemd's time span as `systemctl show` prints it ("2s", "500ms", "1min 30s") in seconds."""
     units = {"us": 1e-6, "ms": 1e-3, "s": 1.0, "min": 60.0, "h": 3600.0}
@@ -1025,7 +1033,7 @@ class Board:
                 after_on_guest = cut_after + offset
                 files = [values(l.split()[2:]) | {"name": l.split()[1]}
                          for l in lines if l.startswith("RECORD ")]
-                before = [f for f in files if float(f.get("START", "inf")) < cut_on_guest]
+                before = [f for f in files if number(f.get("START")) < cut_on_guest]
                 last = max(before, key=lambda f: float(f["START"])) if before else None
                 if last and last.get("LAST") not in (None, ""):
                     end = float(last["START"]) + float(last["LAST"])
