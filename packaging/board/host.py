@@ -821,6 +821,19 @@ class Board:
             times.append(hit)
         return max(times)
 
+    def first_written(self, bus, step_at, after):
+        """Host time when every servo of `bus` had been written, after `after`, an output the
+        autopilot sent from `step_at` on; None if not yet."""
+        times = []
+        for i in BUSES[bus]:
+            wanted = self.autopilot.current_since(i, step_at)
+            hit = next((t for t, j, g in self.sims[bus].goal_writes(after) if j == i and t > after
+                        and any(abs(g - a) <= TOLERANCE_CENTI for a in wanted)), None)
+            if hit is None:
+                return None
+            times.append(hit)
+        return max(times)
+
     def silence(self, bus, since, until=float("inf"), polls_only=False):
         """The first silence on `bus` longer than SILENCE_S that begins between `since` and
         `until`: (last packet before it, first packet after it or None while it lasts). With
@@ -900,8 +913,10 @@ class Board:
         """With the fault switch set, the bus thread hangs `after_s` after every start and the
         watchdog restarts the service: each hang is a run. The hang is when the bus's polls
         stop (goal writes may go on: they are not the bus thread's alone); the restart when
-        they start again. A run's figure: seconds from the hang to the restarted bridge's first
-        goal writes of the autopilot's current outputs on every servo of the bus."""
+        they start again. Once the hang is seen, the autopilot moves to new outputs, so that the
+        restarted bridge has a goal to write (a servo already at its goal gets none). A run's
+        figure: seconds from the hang to the restarted bridge's first goal writes of the
+        autopilot's current outputs on every servo of the bus."""
         r = self.report
         results, restarts, during = [], [], []
         with r.phase(f"fault: hung bus thread ×{cycles}"):
@@ -913,7 +928,7 @@ class Board:
             deadline = time.monotonic() + timeout
             # The restart that applies the drop-in: the first silence after the request. Each
             # hang is looked for from half its delay after the bridge (re)started talking.
-            started, since = None, None
+            started, since, stepped = None, None, None
             while len(results) < cycles and time.monotonic() < deadline:
                 time.sleep(0.5)
                 self.poll_sims()
@@ -923,9 +938,15 @@ class Board:
                         started, since = quiet[1], quiet[1] + after_s / 2
                     continue
                 quiet = self.silence(bus, since, polls_only=True)
+                if quiet and quiet[1] is None and (stepped is None or stepped[0] != quiet[0]):
+                    stepped = (quiet[0], self.autopilot.new_step())
                 if not quiet or quiet[1] is None:
                     continue
-                hit = self.first_current_after(bus, quiet[1] - 1e-6)
+                if stepped and stepped[0] == quiet[0]:
+                    hit = self.first_written(bus, stepped[1], quiet[1] - 1e-6)
+                else:
+                    # The restart came before the hang was seen: the first current goals.
+                    hit = self.first_current_after(bus, quiet[1] - 1e-6)
                 if not hit:
                     continue
                 hung = [(t, i, g) for t, i, g in self.sims[bus].goal_writes(quiet[0] + 1e-6, quiet[1] - 1e-6)]
