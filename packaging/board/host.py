@@ -799,15 +799,7 @@ class Board:
     def first_current(self, bus, since):
         """Host time when every servo of `bus` had been written an output that the autopilot
         sent from `since` on; None if not yet."""
-        times = []
-        for i in BUSES[bus]:
-            wanted = self.autopilot.current_since(i, since)
-            hit = next((t for t, j, g in self.sims[bus].goal_writes(since) if j == i
-                        and any(abs(g - a) <= TOLERANCE_CENTI for a in wanted)), None)
-            if hit is None:
-                return None
-            times.append(hit)
-        return max(times)
+        return self.first_written(bus, since, since)
 
     def first_current_after(self, bus, since):
         """Host time when every servo of `bus` had been written, after `since`, a value that was
@@ -822,12 +814,12 @@ class Board:
         return max(times)
 
     def first_written(self, bus, step_at, after):
-        """Host time when every servo of `bus` had been written, after `after`, an output the
+        """Host time when every servo of `bus` had been written, from `after` on, an output the
         autopilot sent from `step_at` on; None if not yet."""
         times = []
         for i in BUSES[bus]:
             wanted = self.autopilot.current_since(i, step_at)
-            hit = next((t for t, j, g in self.sims[bus].goal_writes(after) if j == i and t > after
+            hit = next((t for t, j, g in self.sims[bus].goal_writes(after) if j == i
                         and any(abs(g - a) <= TOLERANCE_CENTI for a in wanted)), None)
             if hit is None:
                 return None
