@@ -6,7 +6,8 @@
 //! the buffer out when it holds 64 KiB and, at least every [`RecorderOptions::sync_interval`]
 //! (0.25 s by default) while there is something to write, writes it out and asks the disk to
 //! keep it (`File::sync_data`). So a crash or power cut loses at most the last ~0.3 s of
-//! records (the interval and one 50 ms drain, plus what the disk takes to sync), and a file cut in the middle of a write reads back up to its last whole record.
+//! records (the interval and one 50 ms drain, plus what the disk takes to sync), and a file
+//! cut in the middle of a write reads back up to its last whole record.
 //!
 //! Nothing is lost silently. When the queue is full (the disk stalls) a record is counted as
 //! dropped instead of queued; the writer writes a `dropped` record with the count as soon as
