@@ -1071,7 +1071,7 @@ class Board:
                        + (f"record {last['name']} ({last.get('STATE', '?')}): its last sample {loss:.3f} s before the cut"
                           f" (clocks ±{uncertainty * 1000:.0f} ms)" if loss is not None else
                           f"no record of the cut run among {len(files)} files"))
-        good = [b for b in boot_times]
+        good = boot_times
         r.check("power cut: the service runs again", ok and len(good) == runs,
                 (f"boot → current outputs on both buses {', '.join(f'{b:.2f}' for b in good)} s "
                  f"(median {statistics.median(good):.2f} s, worst {max(good):.2f} s)" if good else "no recovery")
