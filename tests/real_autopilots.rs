@@ -541,16 +541,15 @@ async fn arduplane_set_up_as_the_page_says() {
     gcs.command(json!({ "sign": key_hex }));
     let signing = format!("signing_passphrase = \"{PASSPHRASE}\"");
     let (chain, _) = bridge_from_file(&mapping_file, &signing).await;
-    let signed_from = tap.datagrams();
     tap.to_bridge(chain.autopilot_port);
     let mark = gcs.mark();
     gcs.wait_for_after(mark, "the signing bridge's HEARTBEAT", SECS(15), |m| {
         m["msg"] == "HEARTBEAT" && autopilots::from(m, 1, 140)
     });
     sticks_followed(&mut gcs, &chain, &tap, &cfg).await;
-    let ((ap_all, ap_signed), (br_all, br_signed)) = tap.datagrams();
-    let (ap_all, ap_signed) = (ap_all - signed_from.0.0, ap_signed - signed_from.0.1);
-    let (br_all, br_signed) = (br_all - signed_from.1.0, br_signed - signed_from.1.1);
+    let ((ap_all, ap_signed), (br_all, br_signed)) = tap
+        .datagrams_since_first_signed()
+        .expect("ArduPlane signed nothing after SETUP_SIGNING");
     assert!(
         ap_all > 0 && ap_signed == ap_all && br_all > 0 && br_signed == br_all,
         "signed datagrams: autopilot {ap_signed} of {ap_all}, bridge {br_signed} of {br_all}"

@@ -222,6 +222,9 @@ struct TapState {
     /// the bridge), and all datagrams the same way.
     signed: (u64, u64),
     datagrams: (u64, u64),
+    /// `datagrams` and `signed` as they were just before the autopilot's first signed
+    /// datagram: the count of a signed link starts there.
+    before_first_signed: Option<((u64, u64), (u64, u64))>,
 }
 
 /// Whether a datagram's first frame is a signed MAVLink 2 frame (incompat_flags bit 0).
@@ -268,6 +271,12 @@ impl Tap {
                 }
                 state.autopilot = Some(from);
                 state.last_from_autopilot = Some(at);
+                if signed(datagram) && state.before_first_signed.is_none() {
+                    state.before_first_signed = Some((
+                        (state.datagrams.0, state.signed.0),
+                        (state.datagrams.1, state.signed.1),
+                    ));
+                }
                 state.datagrams.0 += 1;
                 state.signed.0 += u64::from(signed(datagram));
                 let mut reader = MavlinkReader::new(datagram);
@@ -310,14 +319,17 @@ impl Tap {
         self.state.lock().unwrap().outputs.clone()
     }
 
-    /// Datagrams passed on so far, and how many of them were signed: `((from the autopilot,
-    /// signed), (from the bridge, signed))`.
-    pub fn datagrams(&self) -> ((u64, u64), (u64, u64)) {
+    /// Datagrams passed on since the autopilot's first signed one (that one included), and how
+    /// many of them were signed: `((from the autopilot, signed), (from the bridge, signed))`; `None` while the autopilot has signed
+    /// nothing. Signing begins whenever the autopilot takes its key, so a count from any other
+    /// moment races with it.
+    pub fn datagrams_since_first_signed(&self) -> Option<((u64, u64), (u64, u64))> {
         let state = self.state.lock().unwrap();
-        (
-            (state.datagrams.0, state.signed.0),
-            (state.datagrams.1, state.signed.1),
-        )
+        let ((ap_all, ap_signed), (br_all, br_signed)) = state.before_first_signed?;
+        Some((
+            (state.datagrams.0 - ap_all, state.signed.0 - ap_signed),
+            (state.datagrams.1 - br_all, state.signed.1 - br_signed),
+        ))
     }
 
     /// When the autopilot's last datagram came.
