@@ -235,6 +235,24 @@ fn tapped_rate(tap: &Tap, since: Instant, window: Duration) -> f64 {
     n as f64 / window.as_secs_f64()
 }
 
+/// Wait until SERVO_OUTPUT_RAW port 0 passes the tap at `hz` or more over a second, or panic
+/// after `timeout`.
+async fn wait_for_tapped_rate(tap: &Tap, hz: f64, timeout: Duration) {
+    let deadline = Instant::now() + timeout;
+    loop {
+        let since = Instant::now();
+        tokio::time::sleep(SECS(1)).await;
+        let tapped = tapped_rate(tap, since, SECS(1));
+        if tapped >= hz {
+            return;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "SERVO_OUTPUT_RAW at {tapped:.1} Hz {timeout:?} after the autopilot's return, not {hz} Hz"
+        );
+    }
+}
+
 /// Move the surfaces through the ground station for `seconds`: RC override of roll, pitch and
 /// yaw at 20 Hz (the autopilot in MANUAL passes them to its outputs).
 async fn sweep_sticks(gcs: &mut GroundStation, seconds: f64) {
@@ -602,12 +620,20 @@ async fn arduplane_set_up_as_the_page_says() {
          {timeout:?} + 100 ms"
     );
     eprintln!("failsafe announced {after:?} after the autopilot's last output");
+    // The view is published after the step that sent the text: wait for it to show the
+    // failsafe, or its return below could be read from before the outage.
+    chain
+        .wait_view("the failsafe in the view", SECS(5), |v| v.failsafe)
+        .await;
     let ap = Autopilot::arduplane(&binary, &dir, &defaults, 14560);
     let mut gcs = GroundStation::connect("tcp:127.0.0.1:5760");
     chain
         .wait_view("the failsafe left", SECS(60), |v| !v.failsafe)
         .await;
     let back = Instant::now();
+    // The restarted autopilot starts at its default rate: the bridge asks for its rate again,
+    // and the stream runs at it before the sticks are swept.
+    wait_for_tapped_rate(&tap, 36.0, SECS(30)).await;
     let texts = chain.gcs.all();
     let said = texts.iter().filter(|(_, _, m)| failsafe_text(m)).count();
     assert_eq!(said, 1, "the failsafe was said {said} times");
