@@ -681,3 +681,23 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn the_aircraft_is_a_name_or_left_out() {
+    let c = Config::parse(GOOD, ORIGIN).unwrap();
+    assert_eq!(
+        c.record.aircraft, None,
+        "left out: the runtime uses the host name"
+    );
+    let named = format!("{GOOD}\n[record]\naircraft = \"VH-LJ9 #2\"\n");
+    let c = Config::parse(&named, ORIGIN).unwrap();
+    assert_eq!(c.record.aircraft.as_deref(), Some("VH-LJ9 #2"));
+    for (value, reason) in [
+        ("\"  \"", "is empty"),
+        ("\"a\\u0007b\"", "no control characters"),
+        (&format!("\"{}\"", "x".repeat(65)), "at most 64 bytes"),
+    ] {
+        let text = format!("{GOOD}\n[record]\naircraft = {value}\n");
+        refused(&text, "aircraft =", "aircraft", reason);
+    }
+}

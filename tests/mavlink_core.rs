@@ -743,3 +743,36 @@ fn the_relayed_heartbeat_keeps_the_autopilots_sequence_number() {
         assert_eq!(relayed, vec![from]);
     }
 }
+
+/// SERVO_OUTPUT_RAW at `time_usec` carrying channel 1.
+fn outputs_at(time_usec: u32) -> MavMessage {
+    let mut raw = [0u16; 16];
+    raw[0] = 1600;
+    lj9da_bridge::mavlink::outputs::servo_output_raw(0, raw, time_usec)
+}
+
+#[test]
+fn the_autopilots_clock_is_kept_for_the_record_once_a_second_and_never_from_a_zero() {
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    // The helper's outputs carry no time: nothing to keep.
+    assert_eq!(c.poll_autopilot_clock(), None);
+    c.handle_message(0, &header(AP), &outputs_at(5_000_000), t0);
+    let first = c.poll_autopilot_clock().expect("the first clock at once");
+    assert_eq!((first.time_usec, first.bits, first.at), (5_000_000, 32, t0));
+    assert_eq!(c.poll_autopilot_clock(), None, "handed out once");
+    // Within the period: kept back; the latest is handed out once the period has passed.
+    for ms in [20u32, 500, 980] {
+        let at = t0 + Duration::from_millis(ms.into());
+        c.handle_message(0, &header(AP), &outputs_at(5_000_000 + ms * 1000), at);
+        assert_eq!(c.poll_autopilot_clock(), None, "{ms} ms after the first");
+    }
+    let at = t0 + Duration::from_millis(1000);
+    c.handle_message(0, &header(AP), &outputs_at(6_000_000), at);
+    let second = c.poll_autopilot_clock().expect("a second later");
+    assert_eq!((second.time_usec, second.at), (6_000_000, at));
+    // A sender that fills in no time keeps none.
+    let later = t0 + Duration::from_secs(3);
+    c.handle_message(0, &header(AP), &outputs_at(0), later);
+    assert_eq!(c.poll_autopilot_clock(), None);
+}

@@ -111,6 +111,14 @@ fn every_kind() -> Vec<Record> {
             answered: u32::MAX,
             missed: 0,
         },
+        RecordBody::AutopilotClock {
+            time_usec: u64::from(u32::MAX),
+            bits: 32,
+        },
+        RecordBody::AutopilotClock {
+            time_usec: 86_400_000_000_000,
+            bits: 64,
+        },
     ];
     for (i, health) in [
         Health::Starting,
@@ -189,7 +197,7 @@ fn every_record_kind_round_trips_through_the_recorder_and_the_reader() {
     assert!(rec.closed);
     assert!(rec.notes.is_empty(), "{:?}", rec.notes);
     assert_eq!(rec.header.servos, servos());
-    assert_eq!(rec.header.version, (1, 3));
+    assert_eq!(rec.header.version, (1, 4));
     assert_eq!(rec.header.part, 0);
     assert!(rec.header.software.starts_with("lj9da-bridge "));
     let (last, data) = rec.records.split_last().unwrap();
@@ -432,12 +440,13 @@ const FIXTURES: [Fixture; 4] = [
 ];
 
 /// Every kind's name, as `RecordBody::kind_name` gives it.
-const KIND_NAMES: [&str; 9] = [
+const KIND_NAMES: [&str; 10] = [
     "goal",
     "telemetry",
     "position",
     "motion",
     "replies",
+    "autopilot clock",
     "health",
     "event",
     "dropped",
@@ -505,6 +514,10 @@ fn files_written_by_formats_1_0_to_1_3_read_back_as_they_were_written() {
             rec.header.software
         );
         assert_eq!(rec.header.servos, sitl_servos(), "format 1.{minor}");
+        assert_eq!(
+            rec.header.aircraft, None,
+            "format 1.{minor} names no aircraft"
+        );
         assert_eq!(rec.records.len(), fixture.records(), "format 1.{minor}");
         assert_eq!(
             rec.records.last().unwrap().body,
@@ -569,6 +582,7 @@ fn files_written_by_formats_1_0_to_1_3_read_back_as_they_were_written() {
                 }
                 RecordBody::Health { .. }
                 | RecordBody::Event { .. }
+                | RecordBody::AutopilotClock { .. }
                 | RecordBody::Dropped { .. }
                 | RecordBody::End { .. } => {}
             }
@@ -726,8 +740,8 @@ fn record_summary_csv_and_plot_take_the_file_of_every_format() {
 fn a_later_minor_version_s_unknown_kind_is_skipped_with_a_note() {
     let records = every_kind();
     let (mut bytes, _) = file_bytes(&records[..3]);
-    // A kind-9 record with a correct CRC, as a later minor version might write.
-    let inner = [4u8, 0, 9, 0, 1, 2];
+    // A kind-10 record with a correct CRC, as a later minor version might write.
+    let inner = [4u8, 0, 10, 0, 1, 2];
     bytes.extend_from_slice(&inner);
     bytes.extend_from_slice(&lj9da_bridge::record::crc32(&inner).to_le_bytes());
     for r in &records[3..] {
@@ -738,7 +752,7 @@ fn a_later_minor_version_s_unknown_kind_is_skipped_with_a_note() {
     assert!(
         rec.notes
             .iter()
-            .any(|n| n.contains("skipped 1 records of kind 9")),
+            .any(|n| n.contains("skipped 1 records of kind 10")),
         "{:?}",
         rec.notes
     );

@@ -174,6 +174,7 @@ fn a_flood_never_blocks_and_every_record_is_written_or_counted_as_dropped() {
         RecorderOptions {
             queue_capacity: 16,
             sync_interval: Duration::from_millis(500),
+            ..RecorderOptions::default()
         },
     )
     .unwrap();
@@ -332,6 +333,7 @@ fn writer_throughput() {
         RecorderOptions {
             queue_capacity: 1 << 20,
             sync_interval: Duration::from_millis(500),
+            ..RecorderOptions::default()
         },
     )
     .unwrap();

@@ -62,6 +62,7 @@ pub(crate) struct RawRecord {
     pub enabled: Option<bool>,
     pub dir: Option<Spanned<String>>,
     pub max_total_mb: Option<Spanned<i64>>,
+    pub aircraft: Option<Spanned<String>>,
 }
 
 #[derive(Debug, Deserialize)]

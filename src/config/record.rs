@@ -15,6 +15,9 @@ pub struct RecordSection {
     /// The most all record files in the folder may take together, in MiB (default 512); the
     /// oldest files are deleted to stay under it.
     pub max_total_mb: u64,
+    /// The aircraft's name, kept in every record file's header so that a fleet's records can
+    /// be told apart (`None`: the computer's host name, which the runtime reads).
+    pub aircraft: Option<String>,
 }
 
 impl RecordSection {
@@ -22,6 +25,8 @@ impl RecordSection {
     /// Files of at least 64 KiB each, four to the total: 1 MiB is the smallest useful total.
     pub const MIN_TOTAL_MB: u64 = 1;
     pub const MAX_TOTAL_MB: u64 = 1 << 20;
+    /// The longest aircraft name a record file keeps, in bytes.
+    pub const MAX_AIRCRAFT_LEN: usize = 64;
 
     /// The record folder for a mapping file at `config_path`.
     pub fn dir_for(&self, config_path: Option<&Path>) -> PathBuf {
@@ -71,10 +76,35 @@ impl RecordSection {
             }
             Some(d) => Some(PathBuf::from(d.get_ref())),
         };
+        let aircraft = match &raw.aircraft {
+            None => None,
+            Some(a) => {
+                let name = a.get_ref();
+                if name.trim().is_empty() {
+                    return Err(scope.error_on(
+                        a,
+                        "aircraft",
+                        "is empty; leave the key out for the computer's host name",
+                    ));
+                }
+                if name.len() > Self::MAX_AIRCRAFT_LEN || name.chars().any(char::is_control) {
+                    return Err(scope.error_on(
+                        a,
+                        "aircraft",
+                        format!(
+                            "{name:?} is not a name: at most {} bytes, no control characters",
+                            Self::MAX_AIRCRAFT_LEN
+                        ),
+                    ));
+                }
+                Some(name.clone())
+            }
+        };
         Ok(RecordSection {
             enabled: raw.enabled.unwrap_or(true),
             dir,
             max_total_mb,
+            aircraft,
         })
     }
 }
@@ -85,6 +115,7 @@ impl Default for RecordSection {
             enabled: true,
             dir: None,
             max_total_mb: Self::DEFAULT_MAX_TOTAL_MB,
+            aircraft: None,
         }
     }
 }

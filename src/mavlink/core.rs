@@ -156,6 +156,27 @@ pub struct BridgeCore {
     described: Option<MavMessage>,
     /// What was read from each servo (model, firmware), for the read-only parameters.
     servo_info: Vec<ServoInfo>,
+    /// The autopilot's clock as its latest output message carried it, for the flight record.
+    clock: Option<AutopilotClock>,
+    /// When a clock was last handed out by [`BridgeCore::poll_autopilot_clock`].
+    clock_taken_at: Option<Instant>,
+}
+
+/// The autopilot's boot clock as one of its output messages carried it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AutopilotClock {
+    /// µs since the autopilot booted (modulo 2³² when `bits` is 32).
+    pub time_usec: u64,
+    /// The width of the message's field: 32 (SERVO_OUTPUT_RAW) or 64 (ACTUATOR_OUTPUT_STATUS).
+    pub bits: u8,
+    /// When the message was handled.
+    pub at: Instant,
+}
+
+impl AutopilotClock {
+    /// How often the flight record is given the clock: often enough to follow a restart of
+    /// the autopilot or a 32-bit wrap, rarely enough to cost nothing.
+    pub const PERIOD: Duration = Duration::from_secs(1);
 }
 
 impl BridgeCore {
@@ -205,6 +226,8 @@ impl BridgeCore {
             params: ParamServer::new(&cfg, now),
             described: None,
             servo_info: vec![ServoInfo::default(); servo_count],
+            clock: None,
+            clock_taken_at: None,
             cfg,
         }
     }
@@ -357,16 +380,24 @@ impl BridgeCore {
         if link != AUTOPILOT_LINK || Some(from) != self.autopilot {
             return;
         }
-        let (port, values) = match (msg, self.cfg.mavlink.source) {
+        let (port, values, time_usec, bits) = match (msg, self.cfg.mavlink.source) {
             (MavMessage::SERVO_OUTPUT_RAW(m), Source::ServoOutputRaw) => {
-                (m.port, from_servo_output_raw(m))
+                (m.port, from_servo_output_raw(m), u64::from(m.time_usec), 32)
             }
             (MavMessage::ACTUATOR_OUTPUT_STATUS(m), Source::ActuatorOutputStatus) => {
-                (0, from_actuator_output_status(m))
+                (0, from_actuator_output_status(m), m.time_usec, 64)
             }
             _ => return,
         };
         self.handle_outputs(port, &values, now);
+        // A sender that fills in no time (0) has no clock to keep.
+        if time_usec != 0 {
+            self.clock = Some(AutopilotClock {
+                time_usec,
+                bits,
+                at: now,
+            });
+        }
     }
 
     fn handle_outputs(&mut self, port: u8, values: &ChannelValues, now: Instant) {
@@ -777,6 +808,21 @@ impl BridgeCore {
             }
         }
         ticked
+    }
+
+    /// The autopilot's clock for the flight record: the first an output message carried, then
+    /// the latest at most once every [`AutopilotClock::PERIOD`].
+    pub fn poll_autopilot_clock(&mut self) -> Option<AutopilotClock> {
+        let clock = self.clock?;
+        if self
+            .clock_taken_at
+            .is_some_and(|taken| clock.at < taken + AutopilotClock::PERIOD)
+        {
+            return None;
+        }
+        self.clock_taken_at = Some(clock.at);
+        self.clock = None;
+        Some(clock)
     }
 
     /// The next servo command: (servo index in mapping order, command).

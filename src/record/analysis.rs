@@ -258,7 +258,9 @@ impl ServoFold {
                 answered, missed, ..
             } => self.replies = Some((*answered, *missed)),
             RecordBody::Event { .. } => self.events += 1,
-            RecordBody::Dropped { .. } | RecordBody::End { .. } => {}
+            RecordBody::AutopilotClock { .. }
+            | RecordBody::Dropped { .. }
+            | RecordBody::End { .. } => {}
         }
     }
 

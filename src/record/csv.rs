@@ -90,6 +90,9 @@ pub fn csv_fields(rec: &Recording, record: &Record) -> [String; CSV_COLUMNS] {
             cols[10] = severity::name(*sev);
             cols[11] = text.clone();
         }
+        RecordBody::AutopilotClock { time_usec, bits } => {
+            cols[11] = format!("autopilot clock: {time_usec} us ({bits}-bit field)");
+        }
         RecordBody::Dropped { count } => cols[11] = format!("records dropped: {count}"),
         RecordBody::End { continued } => {
             cols[11] = if *continued {

@@ -1,4 +1,4 @@
-//! The flight record file format, version 1.3: pure encoding and decoding, no I/O.
+//! The flight record file format, version 1.4: pure encoding and decoding, no I/O.
 //!
 //! A record file (`*.lj9rec`) is a header followed by records, all integers little-endian.
 //! Every part of the file is checked by a CRC-32 ([`super::crc32`]: IEEE, as zlib), so that
@@ -11,7 +11,7 @@
 //! |---|---|---|
 //! | 0 | 8 | magic: the ASCII bytes `LJ9DAREC` |
 //! | 8 | 2 | format major version, `u16` (1). A reader refuses a major version it does not know |
-//! | 10 | 2 | format minor version, `u16` (3; 1.0 to 1.2 files are still read). Minor versions only add: a reader of 1.0 reads 1.x |
+//! | 10 | 2 | format minor version, `u16` (4; 1.0 to 1.3 files are still read). Minor versions only add: a reader of 1.0 reads 1.x |
 //! | 12 | 4 | `body_len`, `u32`: the bytes of the header body that follows (at most 1 MiB) |
 //! | 16 | `body_len` | the header body, below |
 //! | 16 + `body_len` | 4 | CRC-32 of bytes 0 … 16 + `body_len` − 1 |
@@ -26,6 +26,7 @@
 //! | 1 + n | `software`: length `u8`, then that many bytes of UTF-8 (e.g. `lj9da-bridge 0.1.0`) |
 //! | 2 | `servo_count`, `u16`, at most 255 |
 //! | … | the servo table: for each servo, in the mapping file's order (its position is the servo index records use): `name` (length `u8` + UTF-8), `bus` (length `u8` + UTF-8), `id` `u8` (1–127), `channel` `u8` (autopilot output 1–32) |
+//! | 1 + n | `aircraft` (1.4): length `u8`, then that many bytes of UTF-8: the aircraft the bridge flew on (the mapping's `[record] aircraft`, else the computer's host name); empty if unknown. A file before 1.4 ends its body before it |
 //! | … | (a later minor version may append fields here; a reader skips to the end of the body) |
 //!
 //! # Records
@@ -51,6 +52,7 @@
 //! | 6 | end | `next` `u8`: 0 the run ended here cleanly, 1 the run continues in the next part |
 //! | 7 | position (1.1) | `servo` `u8` · `flags` `u8` (as in telemetry) · `present_position` `i16` 0.01 mm — 4 bytes; from 1.3, a read of position and current (a motion record) appends `present_time` `u16` 10 ms · `present_load` `u16` 10 mA — 8 bytes |
 //! | 8 | replies (1.2) | `servo` `u8` · `answered` `u32` · `missed` `u32`: the servo's requests since its bus started that got a good reply, and that got a garbled reply or none (both saturate at `u32::MAX`) — 9 bytes |
+//! | 9 | autopilot clock (1.4) | `bits` `u8` (32 or 64) · `time_usec` `u64`: the autopilot's boot clock, µs, as an output message the bridge took from it carried it (SERVO_OUTPUT_RAW's 32-bit `time_usec`, which wraps every 71.6 min; ACTUATOR_OUTPUT_STATUS's 64-bit one), stamped with the time the bridge handled it — 9 bytes |
 //!
 //! A goal is what the bridge handed to the bus (one record per change); a telemetry record is
 //! one reply of registers 42–59, stamped with the time it arrived; a position record is one
@@ -61,7 +63,9 @@
 //! when a servo's health or its stall state changes; an event is a STATUSTEXT or bus event; a
 //! replies record is written at most once a second per servo while its counts change (the
 //! share of bad replies over a flight is the last one's `missed` over its sum: a wiring figure
-//! for `record trend`).
+//! for `record trend`); an autopilot clock record is written for the first output message
+//! that carries a clock and then at most once a second (`time_usec` − `t_us` places the
+//! record on the autopilot's own log's time axis, within the message's transit).
 //!
 //! A telemetry record takes 22–24 bytes (24 from 4.5 min to 9.5 h into a run).
 //!
@@ -83,7 +87,7 @@ pub const MAGIC: [u8; 8] = *b"LJ9DAREC";
 /// The format's major version: a reader refuses any other.
 pub const VERSION_MAJOR: u16 = 1;
 /// The format's minor version (additions only).
-pub const VERSION_MINOR: u16 = 3;
+pub const VERSION_MINOR: u16 = 4;
 /// The extension of record files (rotation only ever deletes files with it).
 pub const FILE_EXTENSION: &str = "lj9rec";
 /// The largest `len` a record may have.
@@ -114,8 +118,10 @@ pub mod kind {
     pub const POSITION: u8 = 7;
     /// Since format 1.2.
     pub const REPLIES: u8 = 8;
+    /// Since format 1.4.
+    pub const AUTOPILOT_CLOCK: u8 = 9;
     /// Every kind this version reads (they are numbered without gaps).
-    pub const KNOWN: std::ops::RangeInclusive<u8> = GOAL..=REPLIES;
+    pub const KNOWN: std::ops::RangeInclusive<u8> = GOAL..=AUTOPILOT_CLOCK;
 }
 
 /// Payload bytes of each fixed-size kind (a longer payload is a later minor version's).
@@ -128,6 +134,7 @@ const END_LEN: usize = 1;
 const POSITION_LEN: usize = 4;
 const MOTION_LEN: usize = 8;
 const REPLIES_LEN: usize = 9;
+const AUTOPILOT_CLOCK_LEN: usize = 9;
 
 /// One servo of the header's servo table.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -171,10 +178,13 @@ pub struct RecordHeader {
     /// The program that wrote the file.
     pub software: String,
     pub servos: Vec<RecordServo>,
+    /// The aircraft the bridge flew on (format 1.4); `None` in older files, or if the bridge
+    /// did not know it.
+    pub aircraft: Option<String>,
 }
 
 impl RecordHeader {
-    /// The header of a run's first file, written by this program.
+    /// The header of a run's first file, written by this program, naming no aircraft.
     pub fn new(run_start_unix_ns: i64, servos: Vec<RecordServo>) -> Self {
         RecordHeader {
             version: (VERSION_MAJOR, VERSION_MINOR),
@@ -183,7 +193,17 @@ impl RecordHeader {
             part: 0,
             software: concat!("lj9da-bridge ", env!("CARGO_PKG_VERSION")).to_string(),
             servos,
+            aircraft: None,
         }
+    }
+
+    /// The same header naming `aircraft` (cut to 255 bytes as the file keeps it; an empty
+    /// name is none).
+    pub fn with_aircraft(mut self, aircraft: Option<&str>) -> Self {
+        self.aircraft = aircraft
+            .map(|a| truncate_utf8(a, usize::from(u8::MAX)).to_string())
+            .filter(|a| !a.is_empty());
+        self
     }
 }
 
@@ -246,6 +266,10 @@ pub enum RecordBody {
         answered: u32,
         missed: u32,
     },
+    /// The autopilot's boot clock, µs, carried by an output message the bridge took (since
+    /// format 1.4). `bits` is the width of the message's field: 32 (SERVO_OUTPUT_RAW: the
+    /// clock modulo 2³²) or 64 (ACTUATOR_OUTPUT_STATUS).
+    AutopilotClock { time_usec: u64, bits: u8 },
     /// The servo's health or stall state changed.
     Health {
         servo: u8,
@@ -275,7 +299,9 @@ impl RecordBody {
             | RecordBody::Replies { servo, .. }
             | RecordBody::Health { servo, .. } => Some(*servo),
             RecordBody::Event { servo, .. } => *servo,
-            RecordBody::Dropped { .. } | RecordBody::End { .. } => None,
+            RecordBody::AutopilotClock { .. }
+            | RecordBody::Dropped { .. }
+            | RecordBody::End { .. } => None,
         }
     }
 
@@ -287,6 +313,7 @@ impl RecordBody {
             RecordBody::Position { .. } => "position",
             RecordBody::Motion { .. } => "motion",
             RecordBody::Replies { .. } => "replies",
+            RecordBody::AutopilotClock { .. } => "autopilot clock",
             RecordBody::Health { .. } => "health",
             RecordBody::Event { .. } => "event",
             RecordBody::Dropped { .. } => "dropped",
@@ -405,6 +432,7 @@ pub fn encode_header(header: &RecordHeader) -> Vec<u8> {
         body.push(s.id);
         body.push(s.channel);
     }
+    put_str8(&mut body, header.aircraft.as_deref().unwrap_or_default());
     let mut out = Vec::with_capacity(HEADER_PREFIX + body.len() + 4);
     out.extend_from_slice(&MAGIC);
     out.extend_from_slice(&header.version.0.to_le_bytes());
@@ -426,6 +454,7 @@ pub fn encode_record(record: &Record, out: &mut Vec<u8>) -> usize {
         RecordBody::Telemetry { .. } => kind::TELEMETRY,
         RecordBody::Position { .. } | RecordBody::Motion { .. } => kind::POSITION,
         RecordBody::Replies { .. } => kind::REPLIES,
+        RecordBody::AutopilotClock { .. } => kind::AUTOPILOT_CLOCK,
         RecordBody::Health { .. } => kind::HEALTH,
         RecordBody::Event { .. } => kind::EVENT,
         RecordBody::Dropped { .. } => kind::DROPPED,
@@ -486,6 +515,10 @@ pub fn encode_record(record: &Record, out: &mut Vec<u8>) -> usize {
             out.push(*servo);
             out.extend_from_slice(&answered.to_le_bytes());
             out.extend_from_slice(&missed.to_le_bytes());
+        }
+        RecordBody::AutopilotClock { time_usec, bits } => {
+            out.push(*bits);
+            out.extend_from_slice(&time_usec.to_le_bytes());
         }
         RecordBody::Health {
             servo,
@@ -680,6 +713,12 @@ pub fn decode_header(bytes: &[u8]) -> Result<(RecordHeader, usize), HeaderError>
             channel,
         });
     }
+    // 1.4: the aircraft's name. A 1.4 writer always writes it; an older file has no byte here.
+    let aircraft = if minor >= 4 {
+        Some(b.str8().ok_or_else(short)?).filter(|a| !a.is_empty())
+    } else {
+        None
+    };
     Ok((
         RecordHeader {
             version: (major, minor),
@@ -688,6 +727,7 @@ pub fn decode_header(bytes: &[u8]) -> Result<(RecordHeader, usize), HeaderError>
             part,
             software,
             servos,
+            aircraft,
         },
         total,
     ))
@@ -775,6 +815,7 @@ fn decode_body(kind: u8, payload: &[u8]) -> Body {
         kind::END => ("end", END_LEN),
         kind::POSITION => ("position", POSITION_LEN),
         kind::REPLIES => ("replies", REPLIES_LEN),
+        kind::AUTOPILOT_CLOCK => ("autopilot clock", AUTOPILOT_CLOCK_LEN),
         other => return Body::Unsupported(format!("records of kind {other}")),
     };
     let mut c = Cursor::new(payload);
@@ -841,6 +882,14 @@ fn decode_body(kind: u8, payload: &[u8]) -> Body {
                 answered,
                 missed,
             }))
+        })(),
+        kind::AUTOPILOT_CLOCK => (|| {
+            let bits = c.u8()?;
+            let time_usec = c.u64()?;
+            Some(match bits {
+                32 | 64 => Ok(RecordBody::AutopilotClock { time_usec, bits }),
+                other => Err(format!("autopilot clock records of {other} bits")),
+            })
         })(),
         kind::HEALTH => (|| {
             let servo = c.u8()?;

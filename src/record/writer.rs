@@ -83,12 +83,14 @@ impl Default for RecordLimits {
 }
 
 /// How the writer works; the defaults suit the bridge.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RecorderOptions {
     /// Records the queue holds before new ones are dropped (counted).
     pub queue_capacity: usize,
     /// The longest a record waits in memory before it is written and synced to the disk.
     pub sync_interval: Duration,
+    /// The aircraft the header names (`None`: none).
+    pub aircraft: Option<String>,
 }
 
 impl Default for RecorderOptions {
@@ -98,6 +100,7 @@ impl Default for RecorderOptions {
         RecorderOptions {
             queue_capacity: 16_384,
             sync_interval: Duration::from_millis(250),
+            aircraft: None,
         }
     }
 }
@@ -166,7 +169,8 @@ impl Recorder {
         let shared = Arc::new(Shared::default());
         let mut writer = Writer {
             dir: dir.to_path_buf(),
-            header: RecordHeader::new(run_start_unix_ns, servos.to_vec()),
+            header: RecordHeader::new(run_start_unix_ns, servos.to_vec())
+                .with_aircraft(options.aircraft.as_deref()),
             limits,
             start,
             shared: Arc::clone(&shared),
@@ -281,6 +285,12 @@ impl RecordHandle {
         if let Some(servo) = self.servo_index(servo) {
             self.record_at(at, RecordBody::Goal { servo, goal });
         }
+    }
+
+    /// The autopilot's boot clock (`time_usec`, from a field of `bits` bits) as an output
+    /// message handled at `at` carried it.
+    pub fn autopilot_clock(&self, at: Instant, time_usec: u64, bits: u8) {
+        self.record_at(at, RecordBody::AutopilotClock { time_usec, bits });
     }
 
     /// One telemetry reply of servo `servo`, received at `at`.

@@ -24,7 +24,7 @@ use crate::mavlink::param_server::ParamSet;
 use crate::mavlink::signing::{self, DropCounts};
 use crate::mavlink::{BridgeCore, LinkId, ServoReport};
 use crate::protocol::ServoId;
-use crate::record::{RecordHandle, RecordLimits, RecordServo, Recorder};
+use crate::record::{RecordHandle, RecordLimits, RecordServo, Recorder, RecorderOptions};
 use ::mavlink::MavHeader;
 use ::mavlink::dialects::common::MavMessage;
 use buses::{Buses, bridge_event, forward_bus_events};
@@ -205,7 +205,11 @@ fn spawn_mapping_writer(
 fn start_record(cfg: &Config, dir: &std::path::Path) -> Option<RecordHandle> {
     let servos = RecordServo::from_config(cfg);
     let limits = RecordLimits::with_total(cfg.record.max_total_bytes());
-    match Recorder::start(dir, &servos, limits) {
+    let options = RecorderOptions {
+        aircraft: cfg.record.aircraft.clone().or_else(host_name),
+        ..RecorderOptions::default()
+    };
+    match Recorder::start_with(dir, &servos, limits, options) {
         Ok(handle) => {
             tracing::info!(file = ?handle.path(), "flight record started");
             Some(handle)
@@ -218,6 +222,12 @@ fn start_record(cfg: &Config, dir: &std::path::Path) -> Option<RecordHandle> {
             None
         }
     }
+}
+
+/// The computer's host name, the aircraft's name when the mapping gives none.
+fn host_name() -> Option<String> {
+    let name = std::fs::read_to_string("/proc/sys/kernel/hostname").ok()?;
+    Some(name.trim().to_string()).filter(|n| !n.is_empty())
 }
 
 /// Run the bridge until `stop` turns true.
@@ -624,6 +634,11 @@ impl Bridge {
             if let Some(r) = &self.record {
                 r.goal(servo, goal);
             }
+        }
+        if let Some(clock) = self.core.poll_autopilot_clock()
+            && let Some(r) = &self.record
+        {
+            r.autopilot_clock(clock.at, clock.time_usec, clock.bits);
         }
         for ((batches, goals), ticked) in per_bus.iter_mut().zip(goals).zip(ticked) {
             if ticked || !goals.is_empty() {

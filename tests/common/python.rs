@@ -1,16 +1,19 @@
-//! The Python with pymavlink (from PyPI) that the tests run as a third-party autopilot or
-//! ground station: `$LJ9DA_PYTHON` if set, else a virtual environment under the target directory,
-//! made with `pip install` of [`PYMAVLINK`] and the packages it needs, [`PYMAVLINK_NEEDS`]
-//! (all pinned: the tests read what its parser decodes, and a new release of a package it
-//! needs must not change a run) by whichever test asks first.
+//! The Pythons the tests run third-party programs in, each a virtual environment under the
+//! target directory made with `pip install` of pinned packages by whichever test asks first
+//! (all pinned: the tests read what those programs decode, and a new release of a package
+//! they need must not change a run):
+//! - [`python`]: pymavlink, [`PYMAVLINK`] and what it needs ([`PYMAVLINK_NEEDS`]), as a
+//!   third-party autopilot or ground station; `$LJ9DA_PYTHON` if set;
+//! - [`data_python`]: the field's flight-data readers, [`DATA_PACKAGES`]: pyulog (PX4's ULog
+//!   reader), DuckDB and pyarrow.
 //!
 //! Tests of one binary run on threads and the binaries of a workspace may run side by side, so
-//! the environment is made under an exclusive `flock` on a file beside it, and is used only once
+//! an environment is made under an exclusive `flock` on a file beside it, and is used only once
 //! a marker written after a successful install exists. A half-made environment (a run killed
 //! during `pip install`) has no marker and is made again from scratch.
 
 use std::fs::{self, File};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
 use std::sync::OnceLock;
 
@@ -25,22 +28,53 @@ pub const PYMAVLINK: &str = "pymavlink==2.4.50";
 /// also makes a new environment.
 pub const PYMAVLINK_NEEDS: [&str; 2] = ["fastcrc==0.5.0", "lxml==6.1.3"];
 
+/// The flight-data readers of [`data_python`], with what they need, at the versions pip chose
+/// for them. A new pin makes a new environment.
+pub const DATA_PACKAGES: [&str; 4] = [
+    "pyulog==1.3.0",
+    "numpy==2.4.6",
+    "duckdb==2.0.1",
+    "pyarrow==26.0.1",
+];
+
+/// The Python with pymavlink: `$LJ9DA_PYTHON` if set, else its environment, made on first use.
+#[allow(dead_code)] // each test binary uses one Python or the other
 pub fn python() -> PathBuf {
     if let Some(p) = std::env::var_os("LJ9DA_PYTHON") {
         return PathBuf::from(p);
     }
     static MADE: OnceLock<PathBuf> = OnceLock::new();
-    MADE.get_or_init(|| make_venv(&PathBuf::from(env!("CARGO_TARGET_TMPDIR"))))
-        .clone()
+    MADE.get_or_init(|| {
+        let packages = [&[PYMAVLINK][..], &PYMAVLINK_NEEDS[..]].concat();
+        make_venv("pymavlink-venv", &packages, "import pymavlink.mavutil")
+    })
+    .clone()
 }
 
-fn make_venv(dir: &Path) -> PathBuf {
-    let venv = dir.join("pymavlink-venv");
+/// The Python with pyulog, DuckDB and pyarrow ([`DATA_PACKAGES`]), made on first use.
+#[allow(dead_code)] // each test binary uses one Python or the other
+pub fn data_python() -> PathBuf {
+    static MADE: OnceLock<PathBuf> = OnceLock::new();
+    MADE.get_or_init(|| {
+        make_venv(
+            "data-venv",
+            &DATA_PACKAGES,
+            "import pyulog, duckdb, pyarrow.parquet",
+        )
+    })
+    .clone()
+}
+
+/// The environment `name` under the target's tmp directory with `packages` installed, checked
+/// by running `check`; its Python.
+fn make_venv(name: &str, packages: &[&str], check: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"));
+    let venv = dir.join(name);
     let python = venv.join("bin/python");
-    let pins = format!("{PYMAVLINK},{}", PYMAVLINK_NEEDS.join(","));
+    let pins = packages.join(",");
     let marker = venv.join(format!("lj9da-ready-{pins}"));
-    fs::create_dir_all(dir).expect("create the target's tmp directory");
-    let lock = File::create(dir.join("pymavlink-venv.lock")).expect("create the venv lock file");
+    fs::create_dir_all(&dir).expect("create the target's tmp directory");
+    let lock = File::create(dir.join(format!("{name}.lock"))).expect("create the venv lock file");
     // Held until the end of this function: a second process waits here and then finds the marker.
     let _lock = Flock::lock(lock, FlockArg::LockExclusive)
         .map_err(|(_, e)| e)
@@ -61,26 +95,20 @@ fn make_venv(dir: &Path) -> PathBuf {
         venv.display()
     );
     let pip = Command::new(venv.join("bin/pip"))
-        .args([
-            "install",
-            "--quiet",
-            "--disable-pip-version-check",
-            PYMAVLINK,
-        ])
-        .args(PYMAVLINK_NEEDS)
+        .args(["install", "--quiet", "--disable-pip-version-check"])
+        .args(packages)
         .status();
     assert!(
         pip.is_ok_and(|s| s.success()),
-        "`pip install {PYMAVLINK} {}` into {} failed (it needs PyPI)",
-        PYMAVLINK_NEEDS.join(" "),
+        "`pip install {}` into {} failed (it needs PyPI)",
+        packages.join(" "),
         venv.display()
     );
-    let works = Command::new(&python)
-        .args(["-c", "import pymavlink.mavutil"])
-        .status();
+    let works = Command::new(&python).args(["-c", check]).status();
     assert!(
         works.is_ok_and(|s| s.success()),
-        "pymavlink was installed into {} but does not import",
+        "{} were installed into {} but `{check}` fails",
+        packages.join(" "),
         venv.display()
     );
     fs::write(&marker, format!("{pins} installed\n")).expect("write the venv's ready marker");

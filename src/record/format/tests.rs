@@ -99,13 +99,13 @@ fn a_motion_record_is_a_position_record_with_two_words_more() {
 
 #[test]
 fn unknown_kinds_with_a_good_crc_are_skippable() {
-    let mut bytes = vec![3, 0, 9, 0, 0xAA];
+    let mut bytes = vec![3, 0, 10, 0, 0xAA];
     let crc = crc32(&bytes);
     bytes.extend_from_slice(&crc.to_le_bytes());
     assert_eq!(
         decode_record(&bytes),
         Decoded::Unsupported {
-            what: "records of kind 9".into(),
+            what: "records of kind 10".into(),
             len: 9
         }
     );
@@ -127,6 +127,56 @@ fn header_round_trips_and_names_are_cut_at_char_boundaries() {
     assert_eq!(back.servos[0], h.servos[0]);
     assert_eq!(back.servos[1].name, "é".repeat(127));
     assert_eq!(back.run_start_unix_ns, h.run_start_unix_ns);
+}
+
+#[test]
+fn the_aircraft_round_trips_from_1_4_and_an_empty_name_is_none() {
+    let servos = vec![RecordServo::new("elevator", "tail", 3, 3)];
+    let h = RecordHeader::new(1, servos.clone()).with_aircraft(Some("VH-LJ9 #2"));
+    let (back, _) = decode_header(&encode_header(&h)).unwrap();
+    assert_eq!(back.aircraft.as_deref(), Some("VH-LJ9 #2"));
+    assert_eq!(back, h);
+    let none = RecordHeader::new(1, servos.clone()).with_aircraft(Some(""));
+    assert_eq!(none.aircraft, None);
+    assert_eq!(
+        decode_header(&encode_header(&none)).unwrap().0.aircraft,
+        None
+    );
+    // A 1.3 header has no aircraft: what follows its servo table is not read as one.
+    let mut old = RecordHeader::new(1, servos).with_aircraft(Some("VH-LJ9"));
+    old.version = (1, 3);
+    let (back, _) = decode_header(&encode_header(&old)).unwrap();
+    assert_eq!(back.aircraft, None);
+    assert_eq!(back.servos, old.servos);
+}
+
+#[test]
+fn the_autopilot_clock_round_trips_and_an_unknown_width_is_skipped() {
+    for (time_usec, bits) in [(4_294_967_295, 32), (u64::MAX, 64), (0, 64)] {
+        let record = Record {
+            t_us: 12_345_678,
+            body: RecordBody::AutopilotClock { time_usec, bits },
+        };
+        let mut bytes = Vec::new();
+        let len = encode_record(&record, &mut bytes);
+        assert_eq!(decode_record(&bytes), Decoded::Record { record, len });
+    }
+    let mut bytes = Vec::new();
+    encode_record(
+        &Record {
+            t_us: 1,
+            body: RecordBody::AutopilotClock {
+                time_usec: 7,
+                bits: 16,
+            },
+        },
+        &mut bytes,
+    );
+    assert!(
+        matches!(&decode_record(&bytes), Decoded::Unsupported { what, .. } if what.contains("16 bits")),
+        "{:?}",
+        decode_record(&bytes)
+    );
 }
 
 #[test]
