@@ -390,8 +390,9 @@ struct Fixture {
 }
 
 /// 1.0: no position and no replies records; 1.1: position records, no replies; 1.2: replies
-/// records too; 1.3: motion records (a position with its current) in place of position ones.
-const FIXTURES: [Fixture; 4] = [
+/// records too; 1.3: motion records (a position with its current) in place of position ones;
+/// 1.4: the aircraft's name in the header, and the autopilot's clock.
+const FIXTURES: [Fixture; 5] = [
     Fixture {
         minor: 0,
         kinds: &[
@@ -434,6 +435,19 @@ const FIXTURES: [Fixture; 4] = [
             ("replies", 12),
             ("health", 8),
             ("event", 4),
+            ("end", 1),
+        ],
+    },
+    Fixture {
+        minor: 4,
+        kinds: &[
+            ("goal", 416),
+            ("telemetry", 179),
+            ("motion", 368),
+            ("replies", 12),
+            ("autopilot clock", 3),
+            ("health", 8),
+            ("event", 5),
             ("end", 1),
         ],
     },
@@ -514,10 +528,19 @@ fn files_written_by_formats_1_0_to_1_3_read_back_as_they_were_written() {
             rec.header.software
         );
         assert_eq!(rec.header.servos, sitl_servos(), "format 1.{minor}");
-        assert_eq!(
-            rec.header.aircraft, None,
-            "format 1.{minor} names no aircraft"
-        );
+        if minor < 4 {
+            assert_eq!(
+                rec.header.aircraft, None,
+                "format 1.{minor} names no aircraft"
+            );
+        } else {
+            // `sitl` without a mapping: the aircraft is the host name of the computer it ran on.
+            assert!(
+                rec.header.aircraft.as_ref().is_some_and(|a| !a.is_empty()),
+                "format 1.{minor}: {:?}",
+                rec.header.aircraft
+            );
+        }
         assert_eq!(rec.records.len(), fixture.records(), "format 1.{minor}");
         assert_eq!(
             rec.records.last().unwrap().body,
