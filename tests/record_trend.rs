@@ -17,13 +17,12 @@ use lj9da_bridge::record::format::{RecordHeader, RecordServo, encode_header, enc
 use lj9da_bridge::record::trend::{Since, Trend, Verdict, record_files, trend};
 use lj9da_bridge::record::trend_html::trend_page;
 use lj9da_bridge::record::{Record, RecordBody, RecordLimits, Recorder, StatusFeed};
-use lj9da_sim::servo::memory_map::{FACTORY_ROM, ROM_START, reg};
-use lj9da_sim::servo::{Servo, ServoConfig};
-use lj9da_sim::{FrictionSpot, HostPacket, ShortPacket, SimBus, SimConfig, Wear};
+use lj9da_sim::{FrictionSpot, SimBus, SimConfig, Wear};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 use tempdir::TempDir;
+use trend_support::flight::Flight;
 use trend_support::{FIRST_FLIGHT_NS, NS_PER_DAY, files_of};
 
 /// Seconds of each virtual flight.
@@ -36,15 +35,6 @@ fn servos() -> Vec<RecordServo> {
         RecordServo::new("elevator", "tail", 3, 3),
         RecordServo::new("rudder", "tail", 4, 4),
     ]
-}
-
-fn write(servo: &mut Servo, now: Instant, id: u8, address: usize, data: &[u8]) {
-    let packet = HostPacket::Short(ShortPacket::write(id, address as u8, data, 0));
-    servo.receive(now, &packet);
-}
-
-fn u16_at(registers: &[u8], at: usize) -> u16 {
-    u16::from_le_bytes([registers[at], registers[at + 1]])
 }
 
 /// Friction wear of `k` A per mm/s, both ways and over the whole stroke.
@@ -63,109 +53,18 @@ const NO_WEAR: [Wear; 4] = [Wear {
 }; 4];
 
 /// Flight `n` (0-based) of the four servos, with the given wear on each, written as a record
-/// file in `dir`. The flight: a sine sweep of ±10 mm (its amplitude a little different each
-/// flight) for 4 s, then 2 s holding at 5 mm, again and again; telemetry every 13 ms; the
-/// ambient temperature differs from flight to flight.
+/// file in `dir` ([`trend_support::flight`]): one a day from 2026-01-01.
 fn fly(dir: &Path, n: usize, wear: [Wear; 4]) -> PathBuf {
-    let start = Instant::now();
-    let table = servos();
-    let ambient = 20.0 + (n * 7 % 10) as f64;
-    let amplitude_centi = 1000.0 * (1.0 + 0.04 * (((n * 3) % 5) as f64 - 2.0) / 2.0);
-    let mut sim: Vec<Servo> = table
-        .iter()
-        .zip(wear)
-        .map(|(s, wear)| {
-            let mut servo = Servo::new(
-                ServoConfig {
-                    id: s.id,
-                    baud_code: FACTORY_ROM[reg::BAUD_RATE - ROM_START],
-                    voltage_v: 12.0,
-                    ambient_c: ambient,
-                },
-                start,
-            );
-            write(&mut servo, start, s.id, reg::FORCE_ENABLE, &[1]);
-            servo.set_wear(start, wear);
-            servo
-        })
-        .collect();
-    let mut bytes = encode_header(&RecordHeader::new(
-        FIRST_FLIGHT_NS + n as i64 * NS_PER_DAY,
-        table.clone(),
-    ));
-    let mut put = |t_us: u64, body: RecordBody| {
-        encode_record(&Record { t_us, body }, &mut bytes);
-    };
-    for index in 0..table.len() {
-        put(
-            0,
-            RecordBody::Health {
-                servo: index as u8,
-                health: Health::Online,
-                stalled: false,
-            },
-        );
-    }
-    let mut goals = vec![i16::MIN; table.len()];
-    // Goals every 20 ms, each to be reached in 20 ms (a goal time, as a mapping may set);
-    // telemetry every 13 ms, so that samples fall anywhere in a goal's period.
-    for ms in 0..FLIGHT_S * 1000 {
-        let now = start + Duration::from_millis(ms);
-        let phase = (ms % 6000) as f64 / 1000.0;
-        let goal_centi = if phase < 4.0 {
-            (amplitude_centi * (std::f64::consts::PI * phase).sin()).round() as i16
-        } else {
-            500
-        };
-        for (index, (servo, s)) in sim.iter_mut().zip(&table).enumerate() {
-            if ms.is_multiple_of(20) && goals[index] != goal_centi {
-                let mut data = goal_centi.to_le_bytes().to_vec();
-                data.extend_from_slice(&2u16.to_le_bytes());
-                write(servo, now, s.id, reg::GOAL_POSITION, &data);
-                goals[index] = goal_centi;
-                put(
-                    ms * 1000,
-                    RecordBody::Goal {
-                        servo: index as u8,
-                        goal: Goal::Position(MmCenti(goal_centi)),
-                    },
-                );
-            }
-            if !(ms + index as u64 * 3).is_multiple_of(13) {
-                continue;
-            }
-            servo.update(now);
-            let r = servo.registers();
-            put(
-                ms * 1000 + 500,
-                RecordBody::Telemetry {
-                    servo: index as u8,
-                    telemetry: Telemetry {
-                        present_position: MmCenti(u16_at(r, reg::PRESENT_POSITION) as i16),
-                        present_time: Ms10(u16_at(r, reg::PRESENT_TIME)),
-                        present_load: Ma10(u16_at(r, reg::PRESENT_LOAD)),
-                        present_temperature: Celsius(u16_at(r, reg::PRESENT_TEMPERATURE) as i16),
-                        present_voltage: Mv10(u16_at(r, reg::PRESENT_VOLTAGE)),
-                    },
-                    flags: ReplyFlags(servo.status_flags()),
-                },
-            );
-        }
-    }
-    let end_us = FLIGHT_S * 1_000_000 + 10_000;
-    for index in 0..table.len() {
-        put(
-            end_us,
-            RecordBody::Replies {
-                servo: index as u8,
-                answered: (FLIGHT_S * 1000 / 13) as u32,
-                missed: if index == 3 { 40 } else { 0 },
-            },
-        );
-    }
-    put(end_us, RecordBody::End { continued: false });
     let path = dir.join(format!("flight{:02}.lj9rec", n + 1));
-    std::fs::write(&path, &bytes).unwrap();
+    Flight {
+        n,
+        start_ns: FIRST_FLIGHT_NS + n as i64 * NS_PER_DAY,
+        seconds: FLIGHT_S,
+        servos: servos(),
+        wear: wear.to_vec(),
+        aircraft: None,
+    }
+    .write(&path);
     path
 }
 

@@ -1,6 +1,11 @@
 //! What the `record trend` tests share: the flights' calendar (the first on 2026-01-01 at 08:00
 //! UTC) and the record files of a folder.
 
+// Each test binary uses some of these, and the fleet bench others.
+#![allow(dead_code)]
+
+pub mod flight;
+
 use lj9da_bridge::record::trend::record_files;
 use std::path::{Path, PathBuf};
 
