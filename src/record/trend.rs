@@ -51,7 +51,7 @@ mod text;
 
 use super::analysis::ServoFold;
 use super::clock::Utc;
-use super::format::{FILE_EXTENSION, RecordBody, RecordHeader, decode_header};
+use super::format::{FILE_EXTENSION, Record, RecordBody, RecordHeader, decode_header};
 use super::format::{HeaderError, MAX_HEADER_BODY};
 use super::reader::{RecordError, scan_record};
 use serde::Serialize;
@@ -528,7 +528,7 @@ pub fn record_files(paths: &[PathBuf]) -> std::io::Result<Vec<PathBuf>> {
 }
 
 /// A file's header alone (read from its first bytes).
-fn read_header(path: &Path) -> Result<RecordHeader, RecordError> {
+pub fn read_header(path: &Path) -> Result<RecordHeader, RecordError> {
     let io = |source| RecordError::Io {
         path: path.to_path_buf(),
         source,
@@ -569,46 +569,125 @@ pub struct ReadNotes {
 }
 
 /// One run: its figures per servo.
-type RunFlights = Vec<(ServoKey, Flight)>;
+pub type RunFlights = Vec<(ServoKey, Flight)>;
 
 /// One file of a run: its part, path and servo table.
 type Part = (u16, PathBuf, Vec<ServoKey>);
 
+/// The servo table of a header, as servos are matched across records.
+pub fn servo_keys(header: &RecordHeader) -> Vec<ServoKey> {
+    header
+        .servos
+        .iter()
+        .map(|s| ServoKey {
+            name: s.name.clone(),
+            bus: s.bus.clone(),
+            id: s.id,
+        })
+        .collect()
+}
+
+/// One run folded record by record, part after part, into its flights' figures: what
+/// `record trend` computes per flight, for a reader that reads the records for more than the
+/// figures (the Parquet export).
+///
+/// For each part in part order: [`RunFold::begin_part`] with its servo table, every record
+/// of the part to [`RunFold::record`] in file order, then [`RunFold::end_part`]; at the end,
+/// [`RunFold::finish`].
+#[derive(Debug)]
+pub struct RunFold {
+    run_start: i64,
+    /// The servos of the parts read so far.
+    accs: BTreeMap<ServoKey, Acc>,
+    /// The servos of the part being read, in its table's order.
+    part: Vec<(ServoKey, Acc)>,
+    /// The latest record's time in the run, s.
+    end: f64,
+}
+
+impl RunFold {
+    /// A run that started at `run_start_unix_ns`.
+    pub fn new(run_start_unix_ns: i64) -> RunFold {
+        RunFold {
+            run_start: run_start_unix_ns,
+            accs: BTreeMap::new(),
+            part: Vec::new(),
+            end: 0.0,
+        }
+    }
+
+    /// A part with this servo table begins (its servo indices are the table's).
+    pub fn begin_part(&mut self, keys: &[ServoKey]) {
+        self.end_part(None);
+        self.part = keys
+            .iter()
+            .map(|key| {
+                let acc = self
+                    .accs
+                    .remove(key)
+                    .unwrap_or_else(|| Acc::new(self.run_start));
+                (key.clone(), acc)
+            })
+            .collect();
+    }
+
+    /// A record of the current part.
+    pub fn record(&mut self, record: &Record) {
+        let t = record.t_us as f64 / 1e6;
+        self.end = self.end.max(t);
+        if let Some((_, acc)) = record
+            .body
+            .servo()
+            .and_then(|s| self.part.get_mut(usize::from(s)))
+        {
+            acc.record(t, &record.body);
+        }
+    }
+
+    /// The current part ends; `read` is its path if it was read (its header was), which the
+    /// flights then name among their files.
+    pub fn end_part(&mut self, read: Option<&Path>) {
+        let part = std::mem::take(&mut self.part);
+        // A name listed twice in one table keeps its first slot's figures.
+        for (key, mut acc) in part.into_iter().rev() {
+            if let Some(path) = read {
+                acc.flight.files.push(path.to_path_buf());
+            }
+            self.accs.insert(key, acc);
+        }
+    }
+
+    /// The run's flights: each servo that answered in it, with its figures.
+    pub fn finish(mut self) -> RunFlights {
+        self.end_part(None);
+        let end = self.end;
+        self.accs
+            .into_iter()
+            .filter_map(|(key, acc)| acc.finish(end).map(|f| (key, f)))
+            .collect()
+    }
+}
+
 /// Read the parts of one run (sorted by part) into flights.
 fn read_run(run_start: i64, parts: &[Part], notes: &mut ReadNotes) -> RunFlights {
-    let mut accs: BTreeMap<ServoKey, Acc> = BTreeMap::new();
-    let mut end = 0.0f64;
+    let mut fold = RunFold::new(run_start);
     for (_, path, keys) in parts {
-        let mut slots: Vec<Acc> = keys
-            .iter()
-            .map(|key| accs.remove(key).unwrap_or_else(|| Acc::new(run_start)))
-            .collect();
-        let result = scan_record(path, |r| {
-            let t = r.t_us as f64 / 1e6;
-            end = end.max(t);
-            if let Some(acc) = r.body.servo().and_then(|s| slots.get_mut(usize::from(s))) {
-                acc.record(t, &r.body);
-            }
-        });
+        fold.begin_part(keys);
+        let result = scan_record(path, |r| fold.record(&r));
         match result {
             Ok(scan) => {
                 for note in scan.notes {
                     notes.notes.push(format!("{}: {note}", path.display()));
                 }
-                for acc in &mut slots {
-                    acc.flight.files.push(path.clone());
-                }
+                fold.end_part(Some(path));
             }
-            Err(e) => notes.errors.push(e.to_string()),
-        }
-        // A name listed twice in one table keeps its first slot's figures.
-        for (key, acc) in keys.iter().zip(slots).rev() {
-            accs.insert(key.clone(), acc);
+            Err(e) => {
+                notes.errors.push(e.to_string());
+                fold.end_part(None);
+            }
         }
     }
-    accs.into_iter()
-        .filter_map(|(key, acc)| acc.finish(end).map(|f| (key, f)))
-        .collect()
+    fold.finish()
 }
 
 /// Read `files` (on up to the machine's cores) into each servo's flights, sorted by date.
@@ -619,15 +698,7 @@ pub fn read_flights(files: &[PathBuf]) -> (BTreeMap<ServoKey, Vec<Flight>>, Read
     for path in files {
         match read_header(path) {
             Ok(h) => {
-                let keys = h
-                    .servos
-                    .iter()
-                    .map(|s| ServoKey {
-                        name: s.name.clone(),
-                        bus: s.bus.clone(),
-                        id: s.id,
-                    })
-                    .collect();
+                let keys = servo_keys(&h);
                 runs.entry(h.run_start_unix_ns)
                     .or_default()
                     .push((h.part, path.clone(), keys));
