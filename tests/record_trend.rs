@@ -63,6 +63,7 @@ fn fly(dir: &Path, n: usize, wear: [Wear; 4]) -> PathBuf {
         servos: servos(),
         wear: wear.to_vec(),
         aircraft: None,
+        ambient_offset_c: 0.0,
     }
     .write(&path);
     path

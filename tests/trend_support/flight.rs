@@ -28,6 +28,8 @@ pub struct Flight {
     pub wear: Vec<Wear>,
     /// The aircraft the header names.
     pub aircraft: Option<String>,
+    /// Added to the flight's ambient temperature, °C (a hot day: 0 for the usual 20–29 °C).
+    pub ambient_offset_c: f64,
 }
 
 fn write(servo: &mut Servo, now: Instant, id: u8, address: usize, data: &[u8]) {
@@ -44,7 +46,7 @@ impl Flight {
     pub fn bytes(&self) -> Vec<u8> {
         let start = Instant::now();
         let n = self.n;
-        let ambient = 20.0 + (n * 7 % 10) as f64;
+        let ambient = 20.0 + (n * 7 % 10) as f64 + self.ambient_offset_c;
         let amplitude_centi = 1000.0 * (1.0 + 0.04 * (((n * 3) % 5) as f64 - 2.0) / 2.0);
         let mut sim: Vec<Servo> = self
             .servos
