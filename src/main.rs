@@ -61,9 +61,10 @@ enum Command {
         #[arg(long)]
         plain: bool,
     },
-    /// Look at flight records: summary, plots, CSV, and wear across flights (trend).
+    /// Look at flight records: summary, plots, CSV, wear across flights (trend), and Parquet
+    /// for a fleet's tools.
     #[command(
-        after_help = "Examples:\n  lj9da-bridge record summary records/20260302T143000Z.lj9rec\n  lj9da-bridge record plot records/20260302T143000Z.lj9rec --out plots/\n  lj9da-bridge record csv records/20260302T143000Z.lj9rec > flight.csv\n  lj9da-bridge record trend records/                 # wear across flights (--json, --html wear.html)"
+        after_help = "Examples:\n  lj9da-bridge record summary records/20260302T143000Z.lj9rec\n  lj9da-bridge record plot records/20260302T143000Z.lj9rec --out plots/\n  lj9da-bridge record csv records/20260302T143000Z.lj9rec > flight.csv\n  lj9da-bridge record trend records/                 # wear across flights (--json, --html wear.html)\n  lj9da-bridge record parquet records/ --out fleet/  # a fleet's table for DuckDB or Spark (docs/fleet.md)"
     )]
     Record {
         #[command(subcommand)]

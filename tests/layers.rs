@@ -368,6 +368,69 @@ fn every_top_level_module_has_a_layer() {
     }
 }
 
+/// The paths in `source` that start at the `parquet` crate (`parquet::…`, `::parquet::…`, in
+/// `use` items and in code).
+fn parquet_paths(source: &str) -> Vec<String> {
+    struct Found(Vec<String>);
+    impl<'ast> Visit<'ast> for Found {
+        fn visit_item_use(&mut self, item: &'ast syn::ItemUse) {
+            let mut roots = vec![&item.tree];
+            while let Some(tree) = roots.pop() {
+                match tree {
+                    syn::UseTree::Path(p) if p.ident == "parquet" => {
+                        self.0.push("use parquet::…".to_string());
+                    }
+                    syn::UseTree::Group(g) => roots.extend(g.items.iter()),
+                    _ => {}
+                }
+            }
+            syn::visit::visit_item_use(self, item);
+        }
+        fn visit_path(&mut self, path: &'ast syn::Path) {
+            if path.segments.len() > 1 && path.segments[0].ident == "parquet" {
+                let text: Vec<String> = path.segments.iter().map(|s| s.ident.to_string()).collect();
+                self.0.push(text.join("::"));
+            }
+            syn::visit::visit_path(self, path);
+        }
+    }
+    let file = syn::parse_file(source).expect("Rust");
+    let mut found = Found(Vec::new());
+    found.visit_file(&file);
+    found.0
+}
+
+/// The Parquet export is the flight record's business alone: the `parquet` crate is used by
+/// the `record` module and nowhere else (not on the bus or MAVLink paths).
+#[test]
+fn only_the_record_module_uses_the_parquet_crate() {
+    let mut wrong = Vec::new();
+    let mut files: Vec<PathBuf> = LAYERS
+        .iter()
+        .filter(|l| **l != "record")
+        .flat_map(|l| files_of(l))
+        .collect();
+    files.extend(["src/main.rs", "src/lib.rs"].map(PathBuf::from));
+    for file in files {
+        for path in parquet_paths(&std::fs::read_to_string(&file).unwrap()) {
+            wrong.push(format!("{}: {path}", file.display()));
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+    // The check finds the crate's paths, and only them.
+    assert_eq!(
+        parquet_paths("use parquet::file::W; use {parquet::a}; fn f() { ::parquet::x::y(); }")
+            .len(),
+        3
+    );
+    assert!(
+        parquet_paths(
+            "// parquet::x\n/// `parquet::y`\nfn f() { crate::record::parquet::run(); let s = \"parquet::z\"; }"
+        )
+        .is_empty()
+    );
+}
+
 #[test]
 fn a_module_in_a_use_group_is_found() {
     assert_eq!(uses("use crate::{runtime::X};", "bus"), ["runtime"]);

@@ -54,6 +54,22 @@ pub enum RecordCommand {
         #[arg(long, value_name = "FILE")]
         html: Option<PathBuf>,
     },
+    /// Export every flight as Parquet for a fleet's tools (DuckDB, Spark): per flight
+    /// `DIR/samples/<aircraft>_<run start>.parquet` (one row per record) and
+    /// `DIR/flights/<aircraft>_<run start>.parquet` (one row per servo with the figures of
+    /// `record trend`). Exporting again overwrites the same files.
+    Parquet {
+        /// Record files, or folders of them (their `*.lj9rec` files).
+        #[arg(required = true)]
+        paths: Vec<PathBuf>,
+        /// The export's folder (its `samples/` and `flights/` are created if missing).
+        #[arg(long)]
+        out: PathBuf,
+        /// The aircraft of records that do not name one (written before record format 1.4);
+        /// a record that names its aircraft keeps it.
+        #[arg(long, value_name = "NAME")]
+        aircraft: Option<String>,
+    },
     /// Export every record as CSV (one row per record) for a spreadsheet.
     Csv {
         file: PathBuf,
@@ -136,6 +152,11 @@ pub fn run(cmd: RecordCommand) -> ExitCode {
             since,
             html,
         } => run_trend(&paths, json, &since, html.as_deref()),
+        RecordCommand::Parquet {
+            paths,
+            out,
+            aircraft,
+        } => super::parquet::run(&paths, &out, aircraft.as_deref()),
         RecordCommand::Csv { file, out } => {
             let rec = match load(&file) {
                 Ok(rec) => rec,

@@ -22,6 +22,8 @@
 //! - `svg`: the SVG drawing the pictures and the trend's page share (escaping, ticks, axes,
 //!   grid, reference lines, polylines);
 //! - [`trend`](mod@trend): each servo's wear across flights, what `lj9da-bridge record trend` shows;
+//! - [`parquet`](mod@parquet): flights as Parquet for a fleet's tools, what `lj9da-bridge record
+//!   parquet` writes (the only user of the `parquet` crate);
 //! - [`cli`]: [`RecordCommand`] and [`cli::run`], the `record` subcommand;
 //! - `crc` and `clock`: CRC-32 and UTC dates (through `crc32fast` and `time`).
 //!
@@ -53,6 +55,7 @@ pub mod csv;
 pub mod feed;
 pub mod format;
 pub mod page;
+pub mod parquet;
 pub mod plot;
 pub mod reader;
 pub mod rotate;
