@@ -9,7 +9,8 @@
 //! 30, 40 and 50 s ten days apart (so over several months), with the simulator's wear shapes:
 //! friction on one aircraft's elevator from its sixth flight on; on another, friction on an aileron for two flights
 //! only, then none, and a stiff spot where the rudder holds; a third aircraft with four
-//! flights only; a fourth flown in the heat from its sixth flight on.
+//! flights only; a fourth flown in the heat from its sixth flight on; a fifth with wear close
+//! to the thresholds, so that a threshold of the SQL a little off changes a verdict.
 
 mod common;
 mod tempdir;
@@ -104,11 +105,37 @@ fn fleet() -> Vec<(&'static str, Vec<Flight>)> {
             flight("delta", 3, n, hot, [NO_WEAR; 4])
         })
         .collect();
+    // Close to the thresholds: the elevator's friction a little under, over, then under the
+    // +25 % that marks a flight (some +22 %, +27 %, +23 %); the rudder holding against a stiff
+    // spot on the latest flight only, its holding current some 30 mA (+40 %) over its baseline.
+    let echo = (0..8)
+        .map(|n| {
+            let mut wear = [NO_WEAR; 4];
+            wear[2] = friction(match n {
+                5 => 0.0021,
+                6 => 0.0034,
+                7 => 0.0024,
+                _ => 0.0,
+            });
+            if n == 7 {
+                wear[3] = Wear {
+                    stiff_spot: Some(StiffSpot {
+                        from_mm: 4.0,
+                        to_mm: 6.0,
+                        load_n: 3.0,
+                    }),
+                    ..NO_WEAR
+                };
+            }
+            flight("echo", 4, n, 0.0, wear)
+        })
+        .collect();
     vec![
         ("alpha", alpha),
         ("bravo", bravo),
         ("charlie", charlie),
         ("delta", delta),
+        ("echo", echo),
     ]
 }
 
