@@ -435,8 +435,9 @@ fn every_kind() -> Vec<Record> {
             flags: ReplyFlags(0x20),
         },
     );
+    // Heard before the first telemetry of the same servo, recorded after it.
     at(
-        12_000,
+        9_000,
         RecordBody::Telemetry {
             servo: 0,
             telemetry: telemetry(1, 37, 31, 1201, 1),
@@ -565,6 +566,15 @@ fn every_kind() -> Vec<Record> {
             },
         );
     }
+    // An event recorded after later ones.
+    at(
+        3_999_999,
+        RecordBody::Event {
+            servo: None,
+            severity: 5,
+            text: "heard first, recorded late".into(),
+        },
+    );
     at(
         4_100_000,
         RecordBody::Event {
