@@ -13,6 +13,7 @@ mod common;
 mod tempdir;
 
 use common::python::data_python;
+use common::sitl::sitl_records;
 use lj9da_bridge::bus::{Goal, Health};
 use lj9da_bridge::protocol::{Celsius, Ma10, MmCenti, Motion, Ms10, Mv10, ReplyFlags, Telemetry};
 use lj9da_bridge::record::format::{
@@ -775,23 +776,7 @@ fn check_time_base(got: &Value, base: &str, offset: i64) {
 #[test]
 fn every_sample_of_a_sitl_run_comes_back_from_pyulog() {
     let dir = TempDir::new("ulog-sitl");
-    let run = Command::new(BIN)
-        .args(["sitl", "--seconds", "3", "--plain"])
-        .current_dir(dir.path())
-        .stdin(Stdio::null())
-        .output()
-        .expect("lj9da-bridge sitl runs");
-    assert!(
-        run.status.success(),
-        "{:?}\n{}",
-        run.status,
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let records: Vec<PathBuf> = std::fs::read_dir(dir.path().join("records"))
-        .expect("records/ in the current folder")
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|x| x == "lj9rec"))
-        .collect();
+    let records = sitl_records(dir.path(), "3", &[]);
     assert_eq!(records.len(), 1, "{records:?}");
     let rec = read_record(&records[0]).unwrap();
     assert!(rec.closed && rec.notes.is_empty(), "{:?}", rec.notes);
