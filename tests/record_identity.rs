@@ -2,33 +2,17 @@
 //! aircraft's name in its header (the mapping's `[record] aircraft`, else the host name), and
 //! the autopilot's boot clock as its output messages carried it, once a second.
 
+mod common;
 mod tempdir;
 
+use common::sitl::sitl_records;
 use lj9da_bridge::record::{RecordBody, Recording, read_record};
 use std::path::Path;
-use std::process::{Command, Stdio};
 use tempdir::TempDir;
 
-/// Run `sitl` for `seconds` in `work` with `args`; the record it wrote.
+/// Run `sitl` for `seconds` in `work` with `args`; the one record it wrote.
 fn sitl_record(work: &Path, seconds: &str, args: &[&str]) -> Recording {
-    let out = Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
-        .args(["sitl", "--plain", "--seconds", seconds])
-        .args(args)
-        .current_dir(work)
-        .stdin(Stdio::null())
-        .output()
-        .expect("lj9da-bridge sitl runs");
-    assert!(
-        out.status.success(),
-        "{:?}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let files: Vec<_> = std::fs::read_dir(work.join("records"))
-        .expect("records/ in the current folder")
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "lj9rec"))
-        .collect();
+    let files = sitl_records(work, seconds, args);
     assert_eq!(files.len(), 1, "{files:?}");
     read_record(&files[0]).unwrap()
 }

@@ -22,20 +22,11 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 use tempdir::TempDir;
-use trend_support::flight::Flight;
+use trend_support::flight::{Flight, four_servos as servos};
 use trend_support::{FIRST_FLIGHT_NS, NS_PER_DAY, files_of};
 
 /// Seconds of each virtual flight.
 const FLIGHT_S: u64 = 40;
-
-fn servos() -> Vec<RecordServo> {
-    vec![
-        RecordServo::new("aileron_left", "wing", 1, 1),
-        RecordServo::new("aileron_right", "wing", 2, 2),
-        RecordServo::new("elevator", "tail", 3, 3),
-        RecordServo::new("rudder", "tail", 4, 4),
-    ]
-}
 
 /// Friction wear of `k` A per mm/s, both ways and over the whole stroke.
 fn friction(k: f64) -> Wear {

@@ -2,8 +2,10 @@
 //! it takes the alternate screen, rewrites cells there by moving the cursor (no line feeds,
 //! so no growing scroll-back), quits on `q`, and gives the terminal back.
 
+mod common;
 mod tempdir;
 
+use common::sitl::sitl_records;
 use nix::pty::{Winsize, openpty};
 use std::io::{Read, Write};
 use std::process::{Command, Stdio};
@@ -161,24 +163,7 @@ fn sitl_with_a_mapping_records_into_the_current_folder_not_beside_the_mapping() 
         &mapping,
     )
     .unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
-        .args(["sitl", "--plain", "--seconds", "2", "--config"])
-        .arg(&mapping)
-        .current_dir(&work)
-        .stdin(Stdio::null())
-        .output()
-        .expect("lj9da-bridge sitl runs");
-    assert!(
-        out.status.success(),
-        "{:?}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let records: Vec<_> = std::fs::read_dir(work.join("records"))
-        .expect("records/ in the current folder")
-        .filter_map(|e| e.ok())
-        .filter(|e| e.path().extension().is_some_and(|x| x == "lj9rec"))
-        .collect();
+    let records = sitl_records(&work, "2", &["--config", mapping.to_str().unwrap()]);
     assert!(!records.is_empty(), "no record file in work/records");
     assert!(
         !mappings.join("records").exists(),

@@ -11,6 +11,7 @@ use super::reader::{Recording, read_record};
 use super::summary::summary;
 use super::trend::{Since, record_files, trend};
 use super::trend_html::write_trend_page;
+use super::ulog;
 use clap::Subcommand;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -75,6 +76,17 @@ pub enum RecordCommand {
         file: PathBuf,
         /// Write to this file instead of stdout.
         #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Export each record as a ULog file (PX4's log format: `<name>.ulg`, beside the record)
+    /// for PlotJuggler, PX4 Flight Review, Foxglove or pyulog, to be looked at beside the
+    /// autopilot's own log; prints the files written.
+    Ulog {
+        /// Record files (`*.lj9rec`).
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        /// Write the ULog files into this folder (created if missing) instead.
+        #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
     },
 }
@@ -181,6 +193,71 @@ pub fn run(cmd: RecordCommand) -> ExitCode {
                 }
             }
         }
+        RecordCommand::Ulog { files, out } => run_ulog(&files, out.as_deref()),
+    }
+}
+
+/// `record ulog`: each record's ULog file, written whole or not at all (through a `.part` file
+/// renamed at the end). A record that cannot be read, or a file that cannot be written, is an
+/// error and the others are still exported; the exit status is then 1.
+fn run_ulog(files: &[PathBuf], out: Option<&Path>) -> ExitCode {
+    if let Some(dir) = out
+        && let Err(e) = std::fs::create_dir_all(dir)
+    {
+        eprintln!("error: cannot create the folder {}: {e}", dir.display());
+        return ExitCode::FAILURE;
+    }
+    let mut failed = false;
+    let mut targets = std::collections::BTreeSet::new();
+    for file in files {
+        let target = match out {
+            Some(dir) => dir
+                .join(file.file_name().unwrap_or(std::ffi::OsStr::new("record")))
+                .with_extension(ulog::FILE_EXTENSION),
+            None => file.with_extension(ulog::FILE_EXTENSION),
+        };
+        if target == *file {
+            eprintln!(
+                "error: {}: its ULog file would replace it: rename the record to *.lj9rec",
+                file.display()
+            );
+            failed = true;
+            continue;
+        }
+        if !targets.insert(target.clone()) {
+            eprintln!(
+                "error: {}: its ULog file {} is an earlier record's too: export records of the \
+                 same name from different folders one by one",
+                file.display(),
+                target.display()
+            );
+            failed = true;
+            continue;
+        }
+        let Ok(rec) = load(file) else {
+            failed = true;
+            continue;
+        };
+        let part = target.with_extension(format!("{}.part", ulog::FILE_EXTENSION));
+        let written = std::fs::write(&part, ulog::encode_ulog(&rec))
+            .and_then(|()| std::fs::rename(&part, &target));
+        match written {
+            Ok(()) => {
+                if print_out(&format!("{}\n", target.display())) != ExitCode::SUCCESS {
+                    failed = true;
+                }
+            }
+            Err(e) => {
+                let _ = std::fs::remove_file(&part);
+                eprintln!("error: cannot write {}: {e}", target.display());
+                failed = true;
+            }
+        }
+    }
+    if failed {
+        ExitCode::FAILURE
+    } else {
+        ExitCode::SUCCESS
     }
 }
 

@@ -70,6 +70,19 @@ impl Utc {
         )
     }
 
+    /// `2026-11-21T23:59:59.123456Z` (ISO 8601, to the microsecond).
+    pub fn iso_micros(&self) -> String {
+        let t = self.0;
+        format!(
+            "{}T{:02}:{:02}:{:02}.{:06}Z",
+            self.date(),
+            t.hour(),
+            t.minute(),
+            t.second(),
+            t.microsecond()
+        )
+    }
+
     /// Parse `YYYY-MM-DD`, `YYYY-MM-DDTHH:MM`, `YYYY-MM-DDTHH:MM:SS` (a space for the `T`,
     /// and a trailing `Z`, are accepted) as UTC: ns since 1970-01-01.
     pub fn parse_unix_ns(text: &str) -> Option<i64> {
@@ -173,6 +186,15 @@ mod tests {
         let t = Utc::from_unix_ns(ns);
         assert_eq!(t.file_stamp(), "20261121T235959Z");
         assert_eq!(t.to_string(), "2026-11-21 23:59:59.500 UTC");
+        assert_eq!(t.iso_micros(), "2026-11-21T23:59:59.500000Z");
+        assert_eq!(
+            Utc::from_unix_ns(ns + 123_456_789).iso_micros(),
+            "2026-11-21T23:59:59.623456Z"
+        );
+        assert_eq!(
+            Utc::from_unix_ns(-1).iso_micros(),
+            "1969-12-31T23:59:59.999999Z"
+        );
         assert_eq!(Utc::from_unix_ns(-1).file_stamp(), "19691231T235959Z");
         assert_eq!(
             Utc::from_unix_ns(i64::MIN).to_string(),

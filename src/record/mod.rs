@@ -24,6 +24,8 @@
 //! - [`trend`](mod@trend): each servo's wear across flights, what `lj9da-bridge record trend` shows;
 //! - [`parquet`](mod@parquet): flights as Parquet for a fleet's tools, what `lj9da-bridge record
 //!   parquet` writes (the only user of the `parquet` crate);
+//! - [`ulog`]: a recording as a ULog file (PX4's log format), what `lj9da-bridge record ulog`
+//!   writes, for PlotJuggler, Flight Review and `pyulog` beside the autopilot's own log;
 //! - [`cli`]: [`RecordCommand`] and [`cli::run`], the `record` subcommand;
 //! - `crc` and `clock`: CRC-32 and UTC dates (through `crc32fast` and `time`).
 //!
@@ -63,6 +65,7 @@ pub mod summary;
 mod svg;
 pub mod trend;
 pub mod trend_html;
+pub mod ulog;
 pub mod writer;
 
 pub use cli::RecordCommand;

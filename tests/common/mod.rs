@@ -1,11 +1,13 @@
 //! The whole chain for integration tests: simulated servos on real pseudo-terminals, the
 //! bridge in this process, the simulated autopilot and a ground station on real UDP sockets;
-//! [`mapping`] builds the mappings the chains run, [`peer`] plays the autopilot from the test.
+//! [`mapping`] builds the mappings the chains run, [`peer`] plays the autopilot from the test,
+//! [`sitl`] runs the `sitl` command.
 #![allow(dead_code)]
 
 pub mod mapping;
 pub mod peer;
 pub mod python;
+pub mod sitl;
 
 use lj9da_bridge::config::Config;
 use lj9da_bridge::config::edit::MappingFile;

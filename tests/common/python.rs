@@ -5,7 +5,8 @@
 //! - [`python`]: pymavlink, [`PYMAVLINK`] and what it needs ([`PYMAVLINK_NEEDS`]), as a
 //!   third-party autopilot or ground station; `$LJ9DA_PYTHON` if set;
 //! - [`data_python`]: the field's flight-data readers, [`DATA_PACKAGES`]: pyulog (PX4's ULog
-//!   reader), DuckDB and pyarrow.
+//!   reader), DuckDB and pyarrow;
+//! - [`spark_python`]: PySpark, for the fleet bench only.
 //!
 //! Tests of one binary run on threads and the binaries of a workspace may run side by side, so
 //! an environment is made under an exclusive `flock` on a file beside it, and is used only once
@@ -37,6 +38,10 @@ pub const DATA_PACKAGES: [&str; 4] = [
     "pyarrow==26.0.1",
 ];
 
+/// Spark for the fleet bench, with what it needs: Java comes from Debian
+/// (`openjdk-17-jre-headless`).
+pub const SPARK_PACKAGES: [&str; 2] = ["pyspark==4.3.0", "py4j==0.10.9.9"];
+
 /// The Python with pymavlink: `$LJ9DA_PYTHON` if set, else its environment, made on first use.
 #[allow(dead_code)] // each test binary uses one Python or the other
 pub fn python() -> PathBuf {
@@ -63,6 +68,15 @@ pub fn data_python() -> PathBuf {
         )
     })
     .clone()
+}
+
+/// The Python with PySpark ([`SPARK_PACKAGES`]), made on first use: the fleet bench's, not
+/// the tests' (a 450 MB download).
+#[allow(dead_code)]
+pub fn spark_python() -> PathBuf {
+    static MADE: OnceLock<PathBuf> = OnceLock::new();
+    MADE.get_or_init(|| make_venv("spark-venv", &SPARK_PACKAGES, "import pyspark.sql"))
+        .clone()
 }
 
 /// The environment `name` under the target's tmp directory with `packages` installed, checked

@@ -32,6 +32,17 @@ pub struct Flight {
     pub ambient_offset_c: f64,
 }
 
+/// The four servos of `record trend`'s tests and the fleet bench: two ailerons on bus `wing`,
+/// the elevator and the rudder on `tail`, ids and channels 1–4.
+pub fn four_servos() -> Vec<RecordServo> {
+    vec![
+        RecordServo::new("aileron_left", "wing", 1, 1),
+        RecordServo::new("aileron_right", "wing", 2, 2),
+        RecordServo::new("elevator", "tail", 3, 3),
+        RecordServo::new("rudder", "tail", 4, 4),
+    ]
+}
+
 fn write(servo: &mut Servo, now: Instant, id: u8, address: usize, data: &[u8]) {
     let packet = HostPacket::Short(ShortPacket::write(id, address as u8, data, 0));
     servo.receive(now, &packet);
