@@ -63,8 +63,8 @@ def main():
     con = connect(args.fleet)
     began = time.perf_counter()
     relation = con.sql(sql)
-    # A timestamp with a time zone becomes text (UTC, the session's zone) in DuckDB itself:
-    # Python's datetime of it would need the pytz package.
+    # A timestamp with a time zone becomes text (UTC, the session's zone) in DuckDB itself: it
+    # prints the same for every client (DuckDB clients before 1.x needed pytz for it).
     names = relation.columns
     relation = relation.project(
         ", ".join(

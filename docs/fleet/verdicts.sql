@@ -203,7 +203,10 @@ SELECT
     CASE WHEN m.temperature_margin THEN 'temperature margin' END
   ) AS triggers,
   v.marked_since,
-  m.flight_start AS trigger_flight_start,
+  -- The deciding flight (the latest when inspect, the last marked when watch): its UTC date,
+  -- and its run's start as in `flights` (a plain integer, which every client reads).
+  CAST(m.flight_start AS DATE) AS trigger_flight_date,
+  m.run_start_unix_ns AS trigger_run_start_unix_ns,
   CASE WHEN m.friction IS NULL THEN FALSE ELSE m.friction END AS friction,
   CASE WHEN m.holding_current IS NULL THEN FALSE ELSE m.holding_current END AS holding_current,
   CASE WHEN m.heating IS NULL THEN FALSE ELSE m.heating END AS heating,
