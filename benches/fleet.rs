@@ -168,6 +168,9 @@ const DUCKDB: &str = r#"
 import sys, time, duckdb
 out, sqls = sys.argv[1], sys.argv[2:]
 con = duckdb.connect()
+# UTC as docs/fleet/*.sql ask; no progress bar in the lines this prints.
+con.execute("SET TimeZone = 'UTC'")
+con.execute("SET enable_progress_bar = false")
 con.execute(f"CREATE VIEW samples AS SELECT * FROM read_parquet('{out}/samples/*.parquet')")
 con.execute(f"CREATE VIEW flights AS SELECT * FROM read_parquet('{out}/flights/*.parquet')")
 for path in sqls:
@@ -222,17 +225,23 @@ fn main() {
         println!("{h} flight-hours:");
         let records_mb = make_fleet(&dir.join("records"), h, aircraft) as f64 / 1e6;
         let out = dir.join("export");
-        let records = dir.join("records");
+        // The records are in a folder per aircraft; both commands take the folders' files.
+        let mut folders: Vec<PathBuf> = std::fs::read_dir(dir.join("records"))
+            .expect("the fleet's records")
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_dir())
+            .collect();
+        folders.sort();
         let trend = || {
             let mut c = Command::new(bin);
-            c.args(["record", "trend", "--json"]).arg(&records);
+            c.args(["record", "trend", "--json"]).args(&folders);
             timed(&mut c)
         };
         let export = || {
             let _ = std::fs::remove_dir_all(&out);
             let mut c = Command::new(bin);
             c.args(["record", "parquet"])
-                .arg(&records)
+                .args(&folders)
                 .arg("--out")
                 .arg(&out);
             timed(&mut c)

@@ -39,6 +39,8 @@ def connect(fleet):
     """A DuckDB connection with the views `flights` and `samples` over the folder `fleet`."""
     con = duckdb.connect()
     con.execute("SET TimeZone = 'UTC'")
+    # A long query draws a progress bar on stdout, among the rows.
+    con.execute("SET enable_progress_bar = false")
     fleet = pathlib.Path(fleet)
     for view in ("flights", "samples"):
         files = fleet / view / "*.parquet"
