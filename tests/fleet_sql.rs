@@ -419,14 +419,12 @@ fn duckdb_gives_every_servo_of_the_fleet_the_verdict_record_trend_gives_it() {
 }
 
 /// The same SQL files in Spark (local mode) give the same answers. Run by hand, not by
-/// `cargo test` (Spark takes a JVM and some 400 MB of PySpark):
-/// `LJ9DA_SPARK_PYTHON=/path/to/python-with-pyspark cargo test --test fleet_sql -- --ignored`.
+/// `cargo test` (Spark takes a JVM and some 450 MB of PySpark, `common::python::spark_python`):
+/// `cargo test --test fleet_sql -- --ignored`.
 #[test]
-#[ignore = "needs PySpark and Java: LJ9DA_SPARK_PYTHON=… cargo test --test fleet_sql -- --ignored"]
+#[ignore = "needs PySpark (450 MB) and Java 17: cargo test --test fleet_sql -- --ignored"]
 fn spark_gives_every_servo_of_the_fleet_the_verdict_record_trend_gives_it() {
-    let python = std::env::var_os("LJ9DA_SPARK_PYTHON")
-        .map(PathBuf::from)
-        .expect("LJ9DA_SPARK_PYTHON: a Python with pyspark (pip install pyspark)");
+    let python = common::python::spark_python();
     let fleet = make_fleet();
     let rows = query(&python, "spark_verdicts.py", &fleet.export, "verdicts.sql");
     assert_verdicts_are_trends("Spark", &fleet, &rows);
