@@ -372,6 +372,17 @@ pub fn health_name(health: Health) -> &'static str {
     }
 }
 
+/// A goal's wire code (0 position, 1 hold, 2 off, 3 brake) and its position in 0.01 mm (0 but
+/// for a position).
+pub fn goal_code(goal: Goal) -> (u8, i16) {
+    match goal {
+        Goal::Position(p) => (0, p.0),
+        Goal::Hold => (1, 0),
+        Goal::Off => (2, 0),
+        Goal::Brake => (3, 0),
+    }
+}
+
 /// A goal's name in lower case, as in CSV exports.
 pub fn goal_name(goal: Goal) -> &'static str {
     match goal {
@@ -464,12 +475,7 @@ pub fn encode_record(record: &Record, out: &mut Vec<u8>) -> usize {
     put_varint(out, record.t_us);
     match &record.body {
         RecordBody::Goal { servo, goal } => {
-            let (code, position) = match goal {
-                Goal::Position(p) => (0u8, p.0),
-                Goal::Hold => (1, 0),
-                Goal::Off => (2, 0),
-                Goal::Brake => (3, 0),
-            };
+            let (code, position) = goal_code(*goal);
             out.push(*servo);
             out.push(code);
             out.extend_from_slice(&position.to_le_bytes());

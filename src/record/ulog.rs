@@ -75,9 +75,8 @@
 //! not the zone it was flown in.
 
 use super::clock::Utc;
-use super::format::{NO_SERVO, RecordBody, health_code, truncate_utf8};
+use super::format::{NO_SERVO, RecordBody, goal_code, health_code, truncate_utf8};
 use super::reader::Recording;
-use crate::bus::Goal;
 use std::collections::BTreeSet;
 
 /// The first 7 bytes of every ULog file.
@@ -429,12 +428,7 @@ fn sample(body: &RecordBody, out: &mut Vec<u8>) -> Option<(Topic, u8)> {
     let float = |out: &mut Vec<u8>, raw: i32| out.extend_from_slice(&hundredths(raw).to_le_bytes());
     Some(match body {
         RecordBody::Goal { servo, goal } => {
-            let (code, position) = match goal {
-                Goal::Position(p) => (0u8, p.0),
-                Goal::Hold => (1, 0),
-                Goal::Off => (2, 0),
-                Goal::Brake => (3, 0),
-            };
+            let (code, position) = goal_code(*goal);
             float(out, i32::from(position));
             out.push(code);
             (Topic::Goal, *servo)
