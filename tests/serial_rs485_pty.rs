@@ -4,6 +4,8 @@
 //! binary: the error at start names the bus, the port, the errno and what to check.
 
 mod bus_support;
+#[path = "common/ports.rs"]
+mod ports;
 
 use bus_support::*;
 use lj9da_bridge::bus::spawn_bus;
@@ -140,12 +142,6 @@ async fn a_refused_bus_stays_closed_and_silent_while_the_others_run() {
     .await;
 }
 
-/// A UDP port nobody uses at the moment.
-fn free_udp_port() -> u16 {
-    let socket = std::net::UdpSocket::bind("127.0.0.1:0").expect("a UDP socket");
-    socket.local_addr().expect("its address").port()
-}
-
 #[test]
 fn the_bridge_says_at_start_which_bus_is_not_started_and_what_to_check() {
     let (_refusing, refusing_path) = bare_pty();
@@ -183,7 +179,7 @@ bus = "tail"
 id = 2
 channel = 4
 "#,
-            free_udp_port(),
+            ports::free_udp_port(),
             refusing_path.display(),
             plain_path.display()
         ),

@@ -7,6 +7,8 @@
 //! SCHED_FIFO, and no other thread does.
 
 mod bus_support;
+#[path = "common/ports.rs"]
+mod ports;
 mod tempdir;
 
 use bus_support::*;
@@ -45,9 +47,7 @@ impl Service {
         let sim = spawn_sim(sim_config(&[1, 2], 115_200));
         let missing = dir.path().join("ttyUSB-missing");
         let mapping = dir.path().join("bridge.toml");
-        let udp = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
-        let port = udp.local_addr().unwrap().port();
-        drop(udp);
+        let port = ports::free_udp_port();
         std::fs::write(
             &mapping,
             format!(

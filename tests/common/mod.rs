@@ -6,8 +6,11 @@
 
 pub mod mapping;
 pub mod peer;
+pub mod ports;
 pub mod python;
 pub mod sitl;
+
+pub use ports::free_udp_port;
 
 use lj9da_bridge::config::Config;
 use lj9da_bridge::config::edit::MappingFile;
@@ -18,21 +21,12 @@ use mavlink::dialects::common::MavMessage;
 use mavlink::{AsyncMavConnection, MavHeader};
 use std::collections::HashMap;
 use std::fmt::Display;
-use std::net::UdpSocket;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
-
-pub fn free_udp_port() -> u16 {
-    UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
 
 /// Everything a ground station heard, with the time it arrived (or, with a filter, what the
 /// filter kept; every message is counted either way).
@@ -160,6 +154,8 @@ pub struct Chain {
     pub link_dir: Option<PathBuf>,
     stop: watch::Sender<bool>,
     bridge: Option<JoinHandle<Result<(), runtime::RunError>>>,
+    /// Why the bridge ended, if it ended with an error before `stop`.
+    failed: Arc<Mutex<Option<String>>>,
     tasks: Vec<JoinHandle<()>>,
 }
 
@@ -264,7 +260,17 @@ impl Chain {
             }),
             service: false,
         };
-        let bridge = tokio::spawn(runtime::run(cfg.clone(), opts, stop_rx.clone()));
+        let failed = Arc::new(Mutex::new(None));
+        let bridge = tokio::spawn({
+            let (cfg, stop_rx, failed) = (cfg.clone(), stop_rx.clone(), failed.clone());
+            async move {
+                let ran = runtime::run(cfg, opts, stop_rx).await;
+                if let Err(e) = &ran {
+                    *failed.lock().unwrap() = Some(e.to_string());
+                }
+                ran
+            }
+        });
         let handle = AutopilotHandle::default();
         let mut tasks = vec![gcs_task];
         if autopilot {
@@ -284,6 +290,7 @@ impl Chain {
             link_dir,
             stop,
             bridge: Some(bridge),
+            failed,
             tasks,
         }
     }
@@ -300,6 +307,13 @@ impl Chain {
             if pred(&self.view.borrow()) {
                 return;
             }
+            if let Some(e) = self.failed.lock().unwrap().as_ref() {
+                panic!("the bridge stopped while the test waited for {what}: {e}");
+            }
+            assert!(
+                self.bridge_running(),
+                "the bridge's task ended (a panic?) while the test waited for {what}"
+            );
             assert!(
                 Instant::now() < deadline,
                 "timed out after {timeout:?} waiting for {what}: {:#?}",
