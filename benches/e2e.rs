@@ -103,6 +103,8 @@
 mod cases;
 #[path = "e2e/machine.rs"]
 mod machine;
+#[path = "../tests/common/ports.rs"]
+mod ports;
 #[path = "../tests/common/python.rs"]
 mod python;
 #[path = "e2e/report.rs"]
@@ -273,14 +275,6 @@ struct Outcome {
     watchdog: Option<Pings>,
 }
 
-fn free_udp_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 /// The bench's mapping. The failsafe timeout (3 s) outlasts the `gap` scenario's silent port
 /// (2.5 s). `$E2E_TELEMETRY` (e.g. `50` or `"max"`) sets the bus's `telemetry_hz`; unset, the
 /// bridge's default (and a build that predates the key still reads the file).
@@ -328,8 +322,8 @@ fn run_case(case: &Case, seconds: f64, peer: &Peer) -> Outcome {
     })
     .expect("simulated servos");
     let events: Receiver<BusEvent> = sim.handle().subscribe();
-    let ap_port = free_udp_port();
-    let gcs_port = free_udp_port();
+    let ap_port = ports::free_udp_port();
+    let gcs_port = ports::free_udp_port();
     let dir = std::env::temp_dir().join(format!("lj9da-e2e-{}-{}", std::process::id(), ap_port));
     std::fs::create_dir_all(&dir).unwrap();
     let cfg_path = dir.join("bench.toml");
