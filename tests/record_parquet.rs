@@ -166,6 +166,7 @@ fn sample_row(
         "voltage_v",
         "present_time_ms",
         "flags",
+        "next_telemetry_us",
         "health",
         "stalled",
         "answered",
@@ -332,6 +333,22 @@ impl KnownFlight {
                     seq,
                     record,
                 ));
+            }
+        }
+        // A telemetry row's time to the same servo's next telemetry row, across parts.
+        let mut last: BTreeMap<(String, String, String), usize> = BTreeMap::new();
+        for k in 0..rows.len() {
+            if rows[k]["kind"] != text("telemetry") {
+                continue;
+            }
+            let key = |c: &str| format!("{:?}", rows[k][c]);
+            if let Some(earlier) = last.insert((key("servo"), key("bus"), key("id")), k) {
+                let (Cell::Int(now), Cell::Int(then)) = (&rows[k]["t_us"], &rows[earlier]["t_us"])
+                else {
+                    unreachable!("t_us is an integer")
+                };
+                let next = Cell::Int(now - then);
+                rows[earlier].insert("next_telemetry_us", next);
             }
         }
         rows

@@ -3,23 +3,26 @@
 -- view `samples`: the files `samples/*.parquet` of one or more `lj9da-bridge record parquet`
 -- exports.
 --
--- Counted as `record trend` counts its `hot_min` figure: the time between two telemetry
--- samples of a servo in one flight whose earlier sample was above 70 °C, a break of more than
--- 1 s not counted, the samples taken in the order the flight's records hold them (`seq`); so
--- a month's minutes here are the sum of its flights' `hot_min` in `flights`. The same
--- statement runs in DuckDB and Spark SQL.
+-- Counted as `record trend` counts its `hot_min` figure: the time from a telemetry sample
+-- above 70 °C to the servo's next one in the flight (the sample's `next_telemetry_us`), a
+-- break of more than 1 s not counted; so a month's minutes here are the sum of its flights'
+-- `hot_min` in `flights`. A sum over the samples, then over each flight's few rows: no window
+-- over the flight, no sort of the samples. The same statement runs in DuckDB and Spark SQL.
 
-WITH telemetry AS (
+WITH per_flight AS (
   SELECT
-    aircraft, flight_start, servo, bus, id, t_us, temperature_c,
-    LAG(t_us) OVER (
-      PARTITION BY aircraft, flight_start, servo, bus, id ORDER BY seq
-    ) AS previous_t_us,
-    LAG(temperature_c) OVER (
-      PARTITION BY aircraft, flight_start, servo, bus, id ORDER BY seq
-    ) AS previous_c
+    aircraft, flight_start, servo, bus, id,
+    SUM(
+      CASE
+        WHEN temperature_c > 70 AND next_telemetry_us > 0 AND next_telemetry_us <= 1000000
+        THEN next_telemetry_us
+        ELSE 0
+      END
+    ) AS hot_us,
+    MAX(temperature_c) AS peak_c
   FROM samples
   WHERE kind = 'telemetry'
+  GROUP BY aircraft, flight_start, servo, bus, id
 )
 SELECT
   aircraft,
@@ -27,15 +30,9 @@ SELECT
   servo,
   bus,
   id,
-  COUNT(DISTINCT flight_start) AS flights,
-  SUM(
-    CASE
-      WHEN previous_c > 70 AND t_us > previous_t_us AND t_us - previous_t_us <= 1000000
-      THEN (t_us - previous_t_us) / CAST(60000000 AS DOUBLE)
-      ELSE CAST(0 AS DOUBLE)
-    END
-  ) AS minutes_above_70c,
-  MAX(temperature_c) AS peak_c
-FROM telemetry
+  COUNT(*) AS flights,
+  SUM(hot_us) / CAST(60000000 AS DOUBLE) AS minutes_above_70c,
+  MAX(peak_c) AS peak_c
+FROM per_flight
 GROUP BY aircraft, CAST(date_trunc('month', flight_start) AS DATE), servo, bus, id
 ORDER BY aircraft, month, servo, bus, id;

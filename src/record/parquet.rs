@@ -40,6 +40,7 @@
 //! | `voltage_v` | double | telemetry: the present voltage, V |
 //! | `present_time_ms` | int32 | telemetry, motion: the present time register, ms |
 //! | `flags` | int32 | telemetry, position, motion: the reply's status byte (0x80 temperature error, 0x20 temperature alarm, 0x08 flash write error) |
+//! | `next_telemetry_us` | int64 | telemetry: µs from this sample to the servo's next telemetry sample in the flight, the time this sample's readings stand for (null for its last); a query of time spent in a state sums it without a window over the flight |
 //! | `health` | string | health: `starting`, `online`, `stale`, `offline`, `wrong model`, `temperature error` |
 //! | `stalled` | boolean | health: the servo is stalled |
 //! | `answered`, `missed` | int64 | replies: the servo's good replies, and garbled or missing ones, since its bus started |
@@ -79,6 +80,7 @@ use super::reader::scan_record;
 use super::trend::{Flight, RunFlights, RunFold, ServoKey, read_header, record_files, servo_keys};
 use crate::bus::Goal;
 use ::parquet::basic::{Compression, Encoding};
+use bytes::Bytes;
 use ::parquet::data_type::{
     BoolType, ByteArray, ByteArrayType, DataType, DoubleType, Int32Type, Int64Type,
 };
@@ -125,6 +127,7 @@ message sample {
   OPTIONAL DOUBLE voltage_v;
   OPTIONAL INT32 present_time_ms;
   OPTIONAL INT32 flags;
+  OPTIONAL INT64 next_telemetry_us;
   OPTIONAL BYTE_ARRAY health (STRING);
   OPTIONAL BOOLEAN stalled;
   OPTIONAL INT64 answered;
@@ -354,8 +357,9 @@ fn export_flight(aircraft: &str, run_start: i64, parts: &[Part], out: &Path) -> 
     let flights_path = out.join(FLIGHTS_DIR).join(&name);
     let sources: Vec<String> = parts.iter().map(|p| p.1.display().to_string()).collect();
     let mut fold = RunFold::new(run_start);
+    let telemetry = TelemetryTimes::read(parts);
     let written = write_atomically(&samples_path, |file| {
-        let mut samples = SampleWriter::new(file, aircraft, run_start, &sources)?;
+        let mut samples = SampleWriter::new(file, aircraft, run_start, &sources, telemetry)?;
         for (part, path, header) in parts {
             let keys = servo_keys(header);
             fold.begin_part(&keys);
@@ -416,6 +420,48 @@ fn export_flight(aircraft: &str, run_start: i64, parts: &[Part], out: &Path) -> 
         }
     }
     done
+}
+
+/// Every servo's telemetry times in one flight (µs since the run's start), in the order its
+/// parts hold them: a first pass, so that each sample's row knows the time to the next one.
+#[derive(Debug, Default)]
+struct TelemetryTimes {
+    keys: Vec<ServoKey>,
+    times: Vec<Vec<i64>>,
+}
+
+impl TelemetryTimes {
+    /// Read the flight's parts for their telemetry times (what cannot be read is the second
+    /// pass's to say).
+    fn read(parts: &[Part]) -> TelemetryTimes {
+        let mut telemetry = TelemetryTimes::default();
+        for (_, path, header) in parts {
+            let slots: Vec<usize> = servo_keys(header)
+                .into_iter()
+                .map(|key| telemetry.slot(key))
+                .collect();
+            let _ = scan_record(path, |record| {
+                if let RecordBody::Telemetry { servo, .. } = record.body
+                    && let Some(&slot) = slots.get(usize::from(servo))
+                {
+                    telemetry.times[slot].push(t_us(&record));
+                }
+            });
+        }
+        telemetry
+    }
+
+    /// The servo's slot, a new one for a servo not met before.
+    fn slot(&mut self, key: ServoKey) -> usize {
+        match self.keys.iter().position(|k| *k == key) {
+            Some(slot) => slot,
+            None => {
+                self.keys.push(key);
+                self.times.push(Vec::new());
+                self.keys.len() - 1
+            }
+        }
+    }
 }
 
 /// Write `path` through a hidden file beside it, renamed over it once whole.
@@ -495,6 +541,8 @@ struct ServoColumns {
     name: ByteArray,
     bus: ByteArray,
     id: i32,
+    /// The servo's place in [`TelemetryTimes`]' keys.
+    slot: usize,
 }
 
 /// The samples' file of one flight, gathered a row group at a time.
@@ -504,13 +552,23 @@ struct SampleWriter {
     flight_start_us: i64,
     /// Each part's number and servo table, in the order the parts were begun.
     parts: Vec<(i32, Vec<ServoColumns>)>,
-    /// The rows of the row group being gathered: the part (an index of `parts`) and record.
-    rows: Vec<(usize, Record)>,
+    /// The rows of the row group being gathered: the part (an index of `parts`), the record
+    /// and, for telemetry, the µs to the servo's next telemetry sample.
+    rows: Vec<(usize, Record, Option<i64>)>,
     written: u64,
+    /// Every servo's telemetry times in the flight, from a first pass over its parts.
+    telemetry: TelemetryTimes,
+    /// Per servo (by slot): how many of its telemetry samples were pushed.
+    telemetry_seen: Vec<usize>,
 }
 
 fn text(s: &str) -> ByteArray {
     ByteArray::from(s.as_bytes().to_vec())
+}
+
+/// A name the program holds (a kind, goal or health), with no copy per row.
+fn name(s: &'static str) -> ByteArray {
+    ByteArray::from(Bytes::from_static(s.as_bytes()))
 }
 
 impl SampleWriter {
@@ -519,6 +577,7 @@ impl SampleWriter {
         aircraft: &str,
         run_start_unix_ns: i64,
         sources: &[String],
+        telemetry: TelemetryTimes,
     ) -> Result<SampleWriter, ParquetError> {
         let schema = Arc::new(parse_message_type(SAMPLES_SCHEMA)?);
         let props = properties(sources, &["sample_time", "t_us", "seq"]);
@@ -529,6 +588,8 @@ impl SampleWriter {
             parts: Vec::new(),
             rows: Vec::new(),
             written: 0,
+            telemetry_seen: vec![0; telemetry.keys.len()],
+            telemetry,
         })
     }
 
@@ -536,17 +597,33 @@ impl SampleWriter {
         let servos = header
             .servos
             .iter()
-            .map(|s| ServoColumns {
+            .zip(servo_keys(header))
+            .map(|(s, key)| ServoColumns {
                 name: text(&s.name),
                 bus: text(&s.bus),
                 id: i32::from(s.id),
+                slot: self.telemetry.slot(key),
             })
             .collect();
         self.parts.push((i32::from(part), servos));
     }
 
     fn push(&mut self, record: Record) -> Result<(), ParquetError> {
-        self.rows.push((self.parts.len().saturating_sub(1), record));
+        let part = self.parts.len().saturating_sub(1);
+        let next = match &record.body {
+            RecordBody::Telemetry { servo, .. } => self
+                .parts
+                .get(part)
+                .and_then(|(_, table)| table.get(usize::from(*servo)))
+                .and_then(|columns| {
+                    let seen = self.telemetry_seen.get_mut(columns.slot)?;
+                    *seen += 1;
+                    let times = self.telemetry.times.get(columns.slot)?;
+                    Some(times.get(*seen)? - times.get(*seen - 1)?)
+                }),
+            _ => None,
+        };
+        self.rows.push((part, record, next));
         if self.rows.len() >= ROW_GROUP_ROWS {
             self.flush()?;
         }
@@ -561,37 +638,37 @@ impl SampleWriter {
         let parts = &self.parts;
         let servos: Vec<Option<&ServoColumns>> = rows
             .iter()
-            .map(|(p, r)| {
+            .map(|(p, r, _)| {
                 let (_, table) = parts.get(*p)?;
                 table.get(usize::from(r.body.servo()?))
             })
             .collect();
         let mut g = self.file.next_row_group()?;
         let start = self.flight_start_us;
-        let bodies = || rows.iter().map(|(_, r)| &r.body);
+        let bodies = || rows.iter().map(|(_, r, _)| &r.body);
         put::<ByteArrayType, _>(&mut g, rows.iter().map(|_| Some(self.aircraft.clone())))?;
         put::<Int64Type, _>(&mut g, rows.iter().map(|_| Some(start)))?;
         put::<Int64Type, _>(
             &mut g,
             rows.iter()
-                .map(|(_, r)| Some(start.saturating_add(t_us(r)))),
+                .map(|(_, r, _)| Some(start.saturating_add(t_us(r)))),
         )?;
-        put::<Int64Type, _>(&mut g, rows.iter().map(|(_, r)| Some(t_us(r))))?;
+        put::<Int64Type, _>(&mut g, rows.iter().map(|(_, r, _)| Some(t_us(r))))?;
         let first = i64::try_from(self.written).unwrap_or(i64::MAX);
         put::<Int64Type, _>(&mut g, (0..rows.len()).map(|k| Some(first + k as i64)))?;
         put::<Int32Type, _>(
             &mut g,
             rows.iter()
-                .map(|(p, _)| parts.get(*p).map(|(part, _)| *part)),
+                .map(|(p, _, _)| parts.get(*p).map(|(part, _)| *part)),
         )?;
         put::<ByteArrayType, _>(&mut g, servos.iter().map(|s| s.map(|s| s.name.clone())))?;
         put::<ByteArrayType, _>(&mut g, servos.iter().map(|s| s.map(|s| s.bus.clone())))?;
         put::<Int32Type, _>(&mut g, servos.iter().map(|s| s.map(|s| s.id)))?;
-        put::<ByteArrayType, _>(&mut g, bodies().map(|b| Some(text(b.kind_name()))))?;
+        put::<ByteArrayType, _>(&mut g, bodies().map(|b| Some(name(b.kind_name()))))?;
         put::<ByteArrayType, _>(
             &mut g,
             bodies().map(|b| match b {
-                RecordBody::Goal { goal, .. } => Some(text(goal_name(*goal))),
+                RecordBody::Goal { goal, .. } => Some(name(goal_name(*goal))),
                 _ => None,
             }),
         )?;
@@ -657,10 +734,11 @@ impl SampleWriter {
                 _ => None,
             }),
         )?;
+        put::<Int64Type, _>(&mut g, rows.iter().map(|(_, _, next)| *next))?;
         put::<ByteArrayType, _>(
             &mut g,
             bodies().map(|b| match b {
-                RecordBody::Health { health, .. } => Some(text(health_name(*health))),
+                RecordBody::Health { health, .. } => Some(name(health_name(*health))),
                 _ => None,
             }),
         )?;
