@@ -46,6 +46,11 @@ const NO_WEAR: [Wear; 4] = [Wear {
 /// Flight `n` (0-based) of the four servos, with the given wear on each, written as a record
 /// file in `dir` ([`trend_support::flight`]): one a day from 2026-01-01.
 fn fly(dir: &Path, n: usize, wear: [Wear; 4]) -> PathBuf {
+    fly_as(dir, n, wear, None)
+}
+
+/// As [`fly`], on the aircraft the header names.
+fn fly_as(dir: &Path, n: usize, wear: [Wear; 4], aircraft: Option<&str>) -> PathBuf {
     let path = dir.join(format!("flight{:02}.lj9rec", n + 1));
     Flight {
         n,
@@ -53,7 +58,7 @@ fn fly(dir: &Path, n: usize, wear: [Wear; 4]) -> PathBuf {
         seconds: FLIGHT_S,
         servos: servos(),
         wear: wear.to_vec(),
-        aircraft: None,
+        aircraft: aircraft.map(str::to_string),
         ambient_offset_c: 0.0,
     }
     .write(&path);
@@ -220,6 +225,57 @@ fn the_servo_whose_friction_rises_is_marked_from_the_flight_it_passes_the_thresh
             html: None,
         }),
         ExitCode::FAILURE
+    );
+}
+
+/// Two aircraft with servos of the same names, flown at the same times, one elevator wearing:
+/// given at once, each aircraft's servos are judged on their own flights.
+#[test]
+fn a_fleets_folders_at_once_keep_each_aircrafts_servos_apart() {
+    let a = TempDir::new("trend-plane-a");
+    let b = TempDir::new("trend-plane-b");
+    for n in 0..5 {
+        fly_as(a.path(), n, NO_WEAR, Some("plane-a"));
+        fly_as(b.path(), n, NO_WEAR, Some("plane-b"));
+    }
+    let (first, _) = trend(&record_files(&[a.path().to_path_buf()]).unwrap(), &[]);
+    let base = servo(&first, "elevator")
+        .baseline
+        .friction_ma_per_mm_s
+        .unwrap()
+        / 1000.0;
+    for n in 5..10 {
+        let mut wear = NO_WEAR;
+        wear[2] = friction(0.8 * base);
+        fly_as(a.path(), n, wear, Some("plane-a"));
+        fly_as(b.path(), n, NO_WEAR, Some("plane-b"));
+    }
+    let files = record_files(&[a.path().to_path_buf(), b.path().to_path_buf()]).unwrap();
+    assert_eq!(files.len(), 20);
+    let (fleet, notes) = trend(&files, &[]);
+    assert!(notes.errors.is_empty(), "{notes:?}");
+    let text = fleet.to_string();
+    assert_eq!(fleet.servos.len(), 8, "{text}");
+    for s in &fleet.servos {
+        assert_eq!(s.flights.len(), 10, "{text}");
+        // Runs of the two aircraft that began at the same instant are two flights, each of
+        // its own file.
+        assert!(
+            s.flights.iter().all(|f| f.files.len() == 1),
+            "{:?}",
+            s.servo
+        );
+        let worn = s.servo.aircraft.as_deref() == Some("plane-a") && s.servo.name == "elevator";
+        let want = if worn { Verdict::Inspect } else { Verdict::Ok };
+        assert_eq!(s.verdict, want, "{:?}: {text}", s.servo);
+    }
+    assert!(
+        text.contains("plane-a: elevator (bus tail, ID 3): INSPECT"),
+        "{text}"
+    );
+    assert!(
+        text.contains("plane-b: elevator (bus tail, ID 3): OK"),
+        "{text}"
     );
 }
 

@@ -80,7 +80,6 @@ use super::reader::scan_record;
 use super::trend::{Flight, RunFlights, RunFold, ServoKey, read_header, record_files, servo_keys};
 use crate::bus::Goal;
 use ::parquet::basic::{Compression, Encoding};
-use bytes::Bytes;
 use ::parquet::data_type::{
     BoolType, ByteArray, ByteArrayType, DataType, DoubleType, Int32Type, Int64Type,
 };
@@ -90,6 +89,7 @@ use ::parquet::file::properties::WriterProperties;
 use ::parquet::file::writer::{SerializedFileWriter, SerializedRowGroupWriter};
 use ::parquet::schema::parser::parse_message_type;
 use ::parquet::schema::types::ColumnPath;
+use bytes::Bytes;
 use std::collections::BTreeMap;
 use std::fmt;
 use std::fs::File;

@@ -93,9 +93,14 @@ pub const MIN_SAMPLES: u64 = 20;
 /// The least time in motion the heating figure is computed from.
 pub const MIN_MOTION_S: f64 = 10.0;
 
-/// A servo as matched across records.
+/// A servo as matched across records: an aircraft's servo where the records name the aircraft
+/// (format 1.4 on), so that a fleet's folders given at once keep each aircraft's servos apart.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 pub struct ServoKey {
+    /// The aircraft the records name (`[record] aircraft`, or the host name); `None` for older
+    /// records.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub aircraft: Option<String>,
     pub name: String,
     pub bus: String,
     pub id: u8,
@@ -580,6 +585,7 @@ pub fn servo_keys(header: &RecordHeader) -> Vec<ServoKey> {
         .servos
         .iter()
         .map(|s| ServoKey {
+            aircraft: header.aircraft.clone().filter(|a| !a.is_empty()),
             name: s.name.clone(),
             bus: s.bus.clone(),
             id: s.id,

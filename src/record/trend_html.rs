@@ -243,9 +243,14 @@ pub fn trend_page(t: &Trend) -> String {
     for s in &t.servos {
         let _ = writeln!(
             html,
-            "<section data-servo=\"{}\" data-verdict=\"{}\"><h2>{} — bus {}, ID {}: <span class=\"{}\">{}</span></h2>\n{}</section>",
+            "<section data-servo=\"{}\" data-verdict=\"{}\"><h2>{}{} — bus {}, ID {}: <span class=\"{}\">{}</span></h2>\n{}</section>",
             escape(&s.servo.name),
             s.verdict,
+            s.servo
+                .aircraft
+                .as_ref()
+                .map(|a| format!("{}: ", escape(a)))
+                .unwrap_or_default(),
             escape(&s.servo.name),
             escape(&s.servo.bus),
             s.servo.id,

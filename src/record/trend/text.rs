@@ -49,6 +49,9 @@ impl fmt::Display for ServoTrend {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let s = &self.servo;
         let t = &self.totals;
+        if let Some(aircraft) = &s.aircraft {
+            write!(f, "{aircraft}: ")?;
+        }
         write!(
             f,
             "{} (bus {}, ID {}): {}",
