@@ -162,43 +162,6 @@ fn timed(cmd: &mut Command) -> (f64, String) {
     (took, String::from_utf8_lossy(&out.stdout).into_owned())
 }
 
-/// Time the SQL files over the export in `out` in DuckDB, inside Python: "seconds rows" per
-/// file, one line each.
-const DUCKDB: &str = r#"
-import sys, time, duckdb
-out, sqls = sys.argv[1], sys.argv[2:]
-con = duckdb.connect()
-# UTC as docs/fleet/*.sql ask; no progress bar in the lines this prints.
-con.execute("SET TimeZone = 'UTC'")
-con.execute("SET enable_progress_bar = false")
-con.execute(f"CREATE VIEW samples AS SELECT * FROM read_parquet('{out}/samples/*.parquet')")
-con.execute(f"CREATE VIEW flights AS SELECT * FROM read_parquet('{out}/flights/*.parquet')")
-for path in sqls:
-    sql = open(path).read()
-    con.execute(sql).fetchall()  # once warm
-    began = time.perf_counter()
-    rows = con.execute(sql).fetchall()
-    print(f"{time.perf_counter() - began:.3f} {len(rows)}")
-"#;
-
-/// The same in Spark local, with every core.
-const SPARK: &str = r#"
-import sys, time
-from pyspark.sql import SparkSession
-out, sqls = sys.argv[1], sys.argv[2:]
-spark = SparkSession.builder.master("local[*]").appName("lj9da-fleet").getOrCreate()
-spark.sparkContext.setLogLevel("ERROR")
-spark.read.parquet(f"{out}/samples").createOrReplaceTempView("samples")
-spark.read.parquet(f"{out}/flights").createOrReplaceTempView("flights")
-for path in sqls:
-    sql = open(path).read().strip().rstrip(";")
-    spark.sql(sql).collect()  # once warm
-    began = time.perf_counter()
-    rows = spark.sql(sql).collect()
-    print(f"{time.perf_counter() - began:.3f} {len(rows)}")
-spark.stop()
-"#;
-
 fn main() {
     let hours = env_list("FLEET_BENCH_HOURS", &[10, 30, 100]);
     let aircraft = env_list("FLEET_BENCH_AIRCRAFT", &[3])[0].max(1) as usize;
@@ -251,9 +214,14 @@ fn main() {
         export();
         let (export_s, _) = export();
         let parquet_mb = bytes_under(&out) as f64 / 1e6;
+        // The scripts of `docs/fleet.md`, each query's second run timed (warm).
         let query = |python: &Path, script: &str| {
             let mut c = Command::new(python);
-            c.args(["-c", script]).arg(&out).args(&sql);
+            c.arg(root.join("benches/fleet").join(script)).arg(&out);
+            for file in &sql {
+                c.arg("--sql").arg(file);
+            }
+            c.args(["--runs", "2", "--timing"]);
             let (_, stdout) = timed(&mut c);
             let s: Vec<f64> = stdout
                 .lines()
@@ -262,10 +230,10 @@ fn main() {
             assert_eq!(s.len(), 2, "{stdout}");
             (s[0], s[1])
         };
-        let (duck_verdicts, duck_adhoc) = query(&data_python, DUCKDB);
+        let (duck_verdicts, duck_adhoc) = query(&data_python, "duckdb_verdicts.py");
         let (spark_verdicts, spark_adhoc) = spark_python
             .as_ref()
-            .map_or((f64::NAN, f64::NAN), |p| query(p, SPARK));
+            .map_or((f64::NAN, f64::NAN), |p| query(p, "spark_verdicts.py"));
         let row = format!(
             "| {h} | {records_mb:.0} | {trend_s:.2} | {export_s:.2} | {:.0} | {parquet_mb:.0} | {:.2} | {duck_verdicts:.3} | {:.2} | {duck_adhoc:.3} | {spark_verdicts:.2} | {spark_adhoc:.2} |",
             records_mb / export_s,

@@ -1,28 +1,26 @@
 #!/usr/bin/env python3
 """A fleet's wear verdicts, and an ad-hoc question, in DuckDB over a folder of Parquet exports.
 
-    python3 benches/fleet/duckdb_verdicts.py FLEET [--sql FILE] [--json]
+    python3 benches/fleet/duckdb_verdicts.py FLEET [--sql FILE]… [--json] [--runs N] [--timing]
 
 FLEET is a folder made by `lj9da-bridge record parquet … --out FLEET` (one or many runs of it,
 for one aircraft or many): its `flights/*.parquet` become the view `flights`, its
 `samples/*.parquet` the view `samples`, and the SQL file (default `docs/fleet/verdicts.sql`
 beside this script's repository; `docs/fleet/adhoc.sql` for the ad-hoc question) is run as it
 is. The session's time zone is UTC. Printed: a table (or, with `--json`, one JSON object per
-row), then on stderr the rows and the query's wall time.
+row), then on stderr the rows and the query's wall time; with `--timing`, one line per SQL
+file instead: the last run's seconds and the rows (the bench's figures: `--runs 2`, warm).
 
 Needs the `duckdb` Python package (`pip install duckdb`).
 """
 
-import argparse
-import datetime
-import json
 import pathlib
 import sys
 import time
 
 import duckdb
 
-REPO = pathlib.Path(__file__).resolve().parents[2]
+from fleet_sql import arguments, print_rows, sql_files
 
 
 def quoted(path):
@@ -48,22 +46,8 @@ def connect(fleet):
     return con
 
 
-def plain(value):
-    """A value as JSON takes it: timestamps as ISO 8601 text."""
-    if isinstance(value, (datetime.datetime, datetime.date)):
-        return value.isoformat()
-    return value
-
-
-def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("fleet", help="the export's folder (with flights/ and samples/)")
-    parser.add_argument("--sql", default=str(REPO / "docs/fleet/verdicts.sql"))
-    parser.add_argument("--json", action="store_true", help="one JSON object per row")
-    args = parser.parse_args()
-    sql = pathlib.Path(args.sql).read_text()
-    con = connect(args.fleet)
-    began = time.perf_counter()
+def run(con, sql):
+    """The query's column names and rows."""
     relation = con.sql(sql)
     # A timestamp with a time zone becomes text (UTC, the session's zone) in DuckDB itself: it
     # prints the same for every client (DuckDB clients before 1.x needed pytz for it).
@@ -76,18 +60,25 @@ def main():
             for n, t in zip(names, relation.types)
         )
     )
-    rows = relation.fetchall()
-    took = time.perf_counter() - began
-    if args.json:
-        for row in rows:
-            print(json.dumps({n: plain(v) for n, v in zip(names, row)}))
-    else:
-        shown = [[("" if v is None else str(plain(v))) for v in row] for row in rows]
-        widths = [max([len(n)] + [len(r[k]) for r in shown]) for k, n in enumerate(names)]
-        print("  ".join(n.ljust(w) for n, w in zip(names, widths)))
-        for r in shown:
-            print("  ".join(v.ljust(w) for v, w in zip(r, widths)))
-    print(f"duckdb {duckdb.__version__}: {len(rows)} rows in {took:.3f} s", file=sys.stderr)
+    return names, relation.fetchall()
+
+
+def main():
+    args = arguments(__doc__, runs=1).parse_args()
+    con = connect(args.fleet)
+    for path, sql in sql_files(args):
+        for _ in range(max(1, args.runs)):
+            began = time.perf_counter()
+            names, rows = run(con, sql)
+            took = time.perf_counter() - began
+        if args.timing:
+            print(f"{took:.3f} {len(rows)}")
+            continue
+        print_rows(names, rows, args.json)
+        print(
+            f"duckdb {duckdb.__version__}: {path}: {len(rows)} rows in {took:.3f} s",
+            file=sys.stderr,
+        )
 
 
 if __name__ == "__main__":
