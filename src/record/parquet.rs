@@ -490,8 +490,8 @@ fn write_atomically<T>(
 }
 
 /// The columns of `samples` whose row groups carry min/max statistics: the times and the
-/// identity a query selects by, and the temperature. Statistics of every column cost some 15 %
-/// of the export's time (each value compared), for columns no reader prunes by.
+/// identity a query selects by, the temperature and the flags. Statistics of every column cost
+/// some 15 % of the export's time (each value compared), for columns no reader prunes by.
 const SAMPLES_STATISTICS: &[&str] = &[
     "aircraft",
     "flight_start",
