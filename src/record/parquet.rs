@@ -365,7 +365,7 @@ fn export_flight(aircraft: &str, run_start: i64, parts: &[Part], out: &Path) -> 
         for (part, path, header) in parts {
             let keys = servo_keys(header);
             fold.begin_part(&keys);
-            samples.begin_part(*part, header);
+            samples.begin_part(*part, &keys);
             let mut failed: Option<ParquetError> = None;
             let scanned = scan_record(path, |record| {
                 fold.record(&record);
@@ -628,16 +628,15 @@ impl SampleWriter {
         })
     }
 
-    fn begin_part(&mut self, part: u16, header: &RecordHeader) {
-        let servos = header
-            .servos
+    /// A part with this servo table (its header's, as [`servo_keys`] gives it) begins.
+    fn begin_part(&mut self, part: u16, keys: &[ServoKey]) {
+        let servos = keys
             .iter()
-            .zip(servo_keys(header))
-            .map(|(s, key)| ServoColumns {
-                name: text(&s.name),
-                bus: text(&s.bus),
-                id: i32::from(s.id),
-                slot: self.telemetry.slot(key),
+            .map(|key| ServoColumns {
+                name: text(&key.name),
+                bus: text(&key.bus),
+                id: i32::from(key.id),
+                slot: self.telemetry.slot(key.clone()),
             })
             .collect();
         self.parts.push((i32::from(part), servos));
