@@ -168,19 +168,21 @@ fn query(python: &Path, script: &str, export: &Path, sql: &str) -> Vec<Value> {
         .collect()
 }
 
-/// `record trend --json` over one aircraft's folder.
-fn trend(dir: &Path) -> Value {
-    let out = bridge()
-        .args(["record", "trend", "--json"])
-        .arg(dir)
-        .output()
-        .unwrap();
+/// Run `cmd` (the bridge with its arguments), which must succeed; its stdout.
+fn succeeds(cmd: &mut Command) -> Vec<u8> {
+    let out = cmd.output().unwrap();
     assert!(
         out.status.success(),
-        "{}",
+        "{cmd:?}: {}",
         String::from_utf8_lossy(&out.stderr)
     );
-    serde_json::from_slice(&out.stdout).unwrap()
+    out.stdout
+}
+
+/// `record trend --json` over one aircraft's folder.
+fn trend(dir: &Path) -> Value {
+    let stdout = succeeds(bridge().args(["record", "trend", "--json"]).arg(dir));
+    serde_json::from_slice(&stdout).unwrap()
 }
 
 /// The name a finding's figure has among the SQL's boolean columns.
@@ -223,17 +225,12 @@ fn make_fleet() -> Fleet {
             flight.write(&folder.join(format!("flight{:02}.lj9rec", flight.n + 1)));
         }
         // Each aircraft exported on its own, into one fleet folder.
-        let out = bridge()
-            .args(["record", "parquet"])
-            .arg(&folder)
-            .arg("--out")
-            .arg(&export)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
+        succeeds(
+            bridge()
+                .args(["record", "parquet"])
+                .arg(&folder)
+                .arg("--out")
+                .arg(&export),
         );
         records.push((aircraft, folder));
     }
