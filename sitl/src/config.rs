@@ -21,6 +21,8 @@ pub struct SimConfig {
     pub ambient_c: f32,
     /// The servo's own turnaround, added to the Return Delay Time before a reply's first byte.
     pub processing_latency: Duration,
+    /// Return Delay Time stored in every servo's flash (register 7, ms; the factory value is 0).
+    pub return_delay_ms: u8,
     /// Seed of the fault generator: the same seed replays the same corrupted and dropped replies.
     pub seed: u64,
     /// Create a symlink here pointing at the current pty slave (kept across `disconnect_port` /
@@ -38,6 +40,7 @@ impl Default for SimConfig {
             voltage_v: 12.0,
             ambient_c: 25.0,
             processing_latency: Duration::from_micros(150),
+            return_delay_ms: 0,
             seed: 1,
             link: None,
             faults: Vec::new(),

@@ -7,6 +7,9 @@ pub enum Fault {
     CorruptReplies { probability: f64 },
     /// Send no reply at all, with this probability per reply; the servo still acts on the packet.
     DropReplies { probability: f64 },
+    /// Every `every`th reply of the servo (the `every`th, the `2·every`th, …) starts `delay_us`
+    /// later than its return delay says: a servo that answers after the host's allowance.
+    LateReplies { delay_us: u32, every: u32 },
     /// The RS485 adapter echoes every byte the host transmits back to the host (always bus-wide).
     Echo,
     /// The rod is blocked: it cannot move and draws the stall current while force is on.
@@ -28,6 +31,7 @@ pub enum Fault {
 pub enum FaultKind {
     CorruptReplies,
     DropReplies,
+    LateReplies,
     Echo,
     Stall,
     ExternalLoad,
@@ -42,6 +46,7 @@ impl Fault {
         match self {
             Fault::CorruptReplies { .. } => FaultKind::CorruptReplies,
             Fault::DropReplies { .. } => FaultKind::DropReplies,
+            Fault::LateReplies { .. } => FaultKind::LateReplies,
             Fault::Echo => FaultKind::Echo,
             Fault::Stall => FaultKind::Stall,
             Fault::ExternalLoad { .. } => FaultKind::ExternalLoad,
@@ -57,6 +62,8 @@ impl Fault {
 pub struct ReplyFaults {
     pub corrupt_probability: Option<f64>,
     pub drop_probability: Option<f64>,
+    /// [`Fault::LateReplies`]: the delay, and every how many replies.
+    pub late: Option<(std::time::Duration, u32)>,
 }
 
 /// A tiny deterministic random generator (xorshift64*), so that a seeded run replays exactly.

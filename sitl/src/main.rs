@@ -204,6 +204,7 @@ impl Cli {
             voltage_v: self.voltage,
             ambient_c: self.ambient,
             processing_latency: Duration::from_micros(self.latency_us),
+            return_delay_ms: 0,
             seed: self.seed,
             link: self.link.clone(),
             faults,

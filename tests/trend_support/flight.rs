@@ -68,6 +68,7 @@ impl Flight {
                     ServoConfig {
                         id: s.id,
                         baud_code: FACTORY_ROM[reg::BAUD_RATE - ROM_START],
+                        return_delay_ms: FACTORY_ROM[reg::RETURN_DELAY_MS - ROM_START],
                         voltage_v: 12.0,
                         ambient_c: ambient,
                     },

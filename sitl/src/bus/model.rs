@@ -75,6 +75,8 @@ pub struct BusModel {
     echo: bool,
     bus_reply_faults: ReplyFaults,
     servo_reply_faults: Vec<ReplyFaults>,
+    /// Replies each servo has started, for [`Fault::LateReplies`].
+    replies_started: Vec<u64>,
     rng: XorShift64,
     events: VecDeque<BusEvent>,
     garbage: Vec<u8>,
@@ -96,6 +98,7 @@ impl BusModel {
                 let servo_config = ServoConfig {
                     id,
                     baud_code,
+                    return_delay_ms: config.return_delay_ms,
                     voltage_v: f64::from(config.voltage_v),
                     ambient_c: f64::from(config.ambient_c),
                 };
@@ -104,6 +107,7 @@ impl BusModel {
             .collect();
         let mut model = BusModel {
             servo_reply_faults: vec![ReplyFaults::default(); servos.len()],
+            replies_started: vec![0; servos.len()],
             servos,
             configured_ids: config.ids.clone(),
             default_baud,
@@ -451,10 +455,22 @@ impl BusModel {
                     });
                 }
                 if let Some(reply) = reception.reply {
+                    let late = match self.servo_reply_faults.get(slot).and_then(|f| f.late) {
+                        Some((delay, every)) => {
+                            let started = &mut self.replies_started[slot];
+                            *started += 1;
+                            if started.is_multiple_of(u64::from(every.max(1))) {
+                                delay
+                            } else {
+                                Duration::ZERO
+                            }
+                        }
+                        None => Duration::ZERO,
+                    };
                     replies.push((
                         slot,
                         reply,
-                        completed_at + servo.return_delay() + self.latency,
+                        completed_at + servo.return_delay() + self.latency + late,
                     ));
                 }
             }
@@ -489,6 +505,7 @@ impl BusModel {
             drop_probability: own
                 .drop_probability
                 .or(self.bus_reply_faults.drop_probability),
+            late: own.late,
         }
     }
 
@@ -659,6 +676,10 @@ impl BusModel {
                     self.servo_reply_faults[slot].drop_probability = Some(probability)
                 }),
             },
+            Fault::LateReplies { delay_us, every } => slots.iter().for_each(|&slot| {
+                self.servo_reply_faults[slot].late =
+                    Some((Duration::from_micros(u64::from(delay_us)), every));
+            }),
             Fault::Echo => {}
             Fault::Stall => slots
                 .iter()
@@ -694,6 +715,7 @@ impl BusModel {
                     self.servo_reply_faults[slot].corrupt_probability = None
                 }
                 FaultKind::DropReplies => self.servo_reply_faults[slot].drop_probability = None,
+                FaultKind::LateReplies => self.servo_reply_faults[slot].late = None,
                 FaultKind::Echo => {}
                 FaultKind::Stall => self.servos[slot].set_stalled(now, false),
                 FaultKind::ExternalLoad => self.servos[slot].set_load_n(now, 0.0),
@@ -719,6 +741,7 @@ impl BusModel {
         for kind in [
             FaultKind::CorruptReplies,
             FaultKind::DropReplies,
+            FaultKind::LateReplies,
             FaultKind::Echo,
             FaultKind::Stall,
             FaultKind::ExternalLoad,

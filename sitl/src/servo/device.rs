@@ -84,6 +84,8 @@ pub struct ServoConfig {
     pub id: u8,
     /// Baud-rate code stored in flash.
     pub baud_code: u8,
+    /// Return Delay Time stored in flash (ms).
+    pub return_delay_ms: u8,
     pub voltage_v: f64,
     pub ambient_c: f64,
 }
@@ -168,6 +170,7 @@ impl Servo {
         let mut flash = FACTORY_ROM;
         flash[reg::SERVO_ID - ROM_START] = config.id;
         flash[reg::BAUD_RATE - ROM_START] = config.baud_code;
+        flash[reg::RETURN_DELAY_MS - ROM_START] = config.return_delay_ms;
         let mut servo = Servo {
             map: map::power_on_map(&flash, LJ9DA41_MODEL_NUMBER),
             flash,
