@@ -251,3 +251,111 @@ async fn the_port_is_left_reading_byte_by_byte_after_shutdown() {
         0
     );
 }
+
+/// A servo that answers after its allowance while the bridge runs at its own 2 ms allowance.
+/// Every servo has a return delay of 3 ms (the remedy for an adapter slow to release the line);
+/// servo 3 answers 1 ms later than that, within its allowance, and every 4th reply of servo 2
+/// starts 5.3 ms late: after the bridge gave up on it and wrote servo 3's request, so that it
+/// lies in the tty before servo 3's reply. The late reply is never taken for servo 3's, and
+/// servo 3's reply is never written over. (Servo 2's own late replies may meet a packet
+/// written after its allowance ended: that is what an allowance means.) A talk-over within
+/// 20 ms after the simulator handed bytes late is the simulator's, not the bridge's.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_servo_answering_late_never_gets_the_next_servos_reply_talked_over() {
+    const LATE: u8 = 2;
+    let ids = [1, 2, 3, 4];
+    let sim = spawn_sim(lj9da_sim::SimConfig {
+        return_delay_ms: 3,
+        ..sim_config(&ids, 115_200)
+    });
+    let mut cfg = bus_config(&ids, BaudRate::B115200);
+    cfg.turnaround = lj9da_bridge::bus::BusConfig::DEFAULT_TURNAROUND;
+    let bus = spawn_bus(cfg, sim.path());
+    every_servo_online(&bus).await;
+    hold_with_force_on(&bus, &ids, MmCenti(0)).await;
+    let events = sim.handle().subscribe();
+    let late = |delay_us, every| lj9da_sim::Fault::LateReplies { delay_us, every };
+    assert!(sim.handle().inject(Some(LATE), late(5_300, 4)));
+    assert!(sim.handle().inject(Some(3), late(1_000, 1)));
+    let before = bus.status();
+    for k in 0..250i16 {
+        bus.output_message(ids.map(|n| (id(n), Goal::Position(MmCenti((k % 50) * 10 - 250)))));
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let st = bus.status();
+    let timeouts =
+        |n: u8| st.servo(id(n)).unwrap().timeouts - before.servo(id(n)).unwrap().timeouts;
+    let events: Vec<SimEvent> = events.try_iter().collect();
+    let handed_late: Vec<std::time::Instant> = events
+        .iter()
+        .filter_map(|e| match e {
+            SimEvent::HandedLate { at, .. } => Some(*at),
+            _ => None,
+        })
+        .collect();
+    let (mut late_over, mut excused, mut over) = (0, 0, Vec::new());
+    let mut story = String::new();
+    for event in &events {
+        let SimEvent::Collision { at, id } = event else {
+            continue;
+        };
+        if *id == LATE {
+            late_over += 1;
+        } else if handed_late
+            .iter()
+            .any(|h| *h <= *at + Duration::from_millis(1) && *at <= *h + Duration::from_millis(20))
+        {
+            excused += 1;
+        } else {
+            over.push(*id);
+            story += &line_before(&events, *at, *id);
+        }
+    }
+    println!(
+        "servo {LATE}: {} replies given up on, {late_over} of its late replies met a packet; \
+         others' replies talked over: {over:?}, and {excused} after the simulator handed bytes \
+         late ({} times)",
+        timeouts(LATE),
+        handed_late.len()
+    );
+    assert!(timeouts(LATE) > 20, "servo {LATE} answered late: {st:?}");
+    assert!(
+        over.is_empty(),
+        "replies of servos {over:?} talked over: {:?}\n{story}",
+        st.counters
+    );
+    bus.shutdown(ShutdownForce::AsIs).await;
+}
+
+/// What the simulated line carried in the 15 ms before the collision at `at` with servo `id`'s
+/// reply, one line per packet or reply, times in µs before the collision.
+fn line_before(events: &[SimEvent], at: std::time::Instant, id: u8) -> String {
+    let before = |t: std::time::Instant| at.saturating_duration_since(t).as_micros();
+    let mut lines = format!("servo {id}'s reply talked over:\n");
+    for event in events {
+        let line = match event {
+            SimEvent::Packet(p) if p.completed_at + Duration::from_millis(15) >= at => format!(
+                "  host {:?} from -{} to -{} µs{}\n",
+                p.packet,
+                before(p.first_byte_at),
+                before(p.completed_at),
+                if p.collided { " COLLIDED" } else { "" }
+            ),
+            SimEvent::Reply(r) if r.last_byte_at + Duration::from_millis(15) >= at => format!(
+                "  servo {} replies {} bytes from -{} to -{} µs\n",
+                r.id,
+                r.bytes.len(),
+                before(r.first_byte_at),
+                before(r.last_byte_at)
+            ),
+            _ => continue,
+        };
+        if line.contains("-0 to -0") || !line.is_empty() {
+            lines += &line;
+        }
+        if matches!(event, SimEvent::Collision { at: c, .. } if *c == at) {
+            break;
+        }
+    }
+    lines
+}

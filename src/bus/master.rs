@@ -31,6 +31,13 @@
 //! the temperature makes that servo's next read a full one, its event held until that read is
 //! in (at most 200 ms), so that the event and the temperature of the moment come out together.
 //!
+//! Never a word over a servo: the bytes of a whole return packet that is not the reply awaited
+//! (a servo that answered after its allowance, when the bus master had moved on) never count as
+//! the awaited reply's; while the decoder holds the start of a return packet that is not known
+//! to be the awaited one, the bytes read do not end the request; and a reply still coming when
+//! its allowance ended, or one that comes while none is awaited, holds the line until its rest
+//! can have come and a few byte times after its latest byte ([`QUIET_AFTER_GARBLED_BYTES`]).
+//!
 //! A long packet expects no reply; the reply timeout of a request queued behind one counts from
 //! the moment the bytes before it have left the wire (and from the real write, see
 //! [`BusMaster::handle_written`]). A long packet is never queued more than one frame ahead of
@@ -46,6 +53,7 @@ use super::quality::{self, Counts, QualityChange};
 use super::rhythm::GoalRhythm;
 use super::servo::{Phase, Servo, Transaction};
 use super::status::{BusCounters, BusStatus};
+use crate::protocol::decoder::BegunHeader;
 use crate::protocol::packet::ExpectedReply;
 use crate::protocol::{DecodeError, Decoded, Decoder, ReturnPacket, ServoId};
 use std::collections::VecDeque;
@@ -85,6 +93,8 @@ struct Pending {
     request_ends: Instant,
     /// Bytes read since the request left the wire that were not its echo, garbage included.
     heard: u64,
+    /// [`BusMaster::foreign_bytes`] when the request was sent.
+    foreign_before: u64,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -134,6 +144,14 @@ pub struct BusMaster {
     /// When the current burst of reads began: the tick's long packet, or a read started when
     /// it was due. A servo read since then is not read early again in the same burst.
     burst_began: Instant,
+    /// Bytes of whole return packets that were not the reply awaited (a servo that answered
+    /// after its allowance): they never count as the awaited reply's.
+    foreign_bytes: u64,
+    /// Until when a servo may still be talking although no reply is awaited (a reply begun
+    /// when its allowance ended, or one that came after it): nothing is written before.
+    line_busy_until: Option<Instant>,
+    /// When bytes were last read.
+    last_input_at: Instant,
 }
 
 impl BusMaster {
@@ -169,6 +187,9 @@ impl BusMaster {
             judged_at: now,
             chain_until: None,
             burst_began: now,
+            foreign_bytes: 0,
+            line_busy_until: None,
+            last_input_at: now,
         }
     }
 
@@ -232,15 +253,31 @@ impl BusMaster {
     /// Bytes read from the port.
     pub fn handle_input(&mut self, bytes: &[u8], now: Instant) {
         self.touch(now);
+        if !bytes.is_empty() {
+            self.last_input_at = now;
+        }
         self.counters.bytes_received += bytes.len() as u64;
         let echoes_before = self.counters.echo_bytes;
+        let foreign_before = self.foreign_bytes;
         self.decoder.push(bytes);
         self.drain_decoder(now);
         let echoed = self.counters.echo_bytes - echoes_before;
+        let foreign = self.foreign_bytes - foreign_before;
         if let Some(p) = self.pending.as_mut()
             && now >= p.request_ends
         {
-            p.heard += (bytes.len() as u64).saturating_sub(echoed);
+            p.heard += (bytes.len() as u64).saturating_sub(echoed + foreign);
+        }
+        let talk = (bytes.len() as u64).saturating_sub(echoed) > 0;
+        if self.pending.is_none()
+            && (foreign > 0
+                || self.decoder.begun_reply().is_some()
+                || (talk && self.line_busy(now)))
+        {
+            // A servo talks while no reply is awaited: the line is busy until the rest of a
+            // reply begun can have come, and quiet after it.
+            let missing = self.begun_reply_missing().unwrap_or(0);
+            self.hold_line(now + self.cfg.wire_time(missing) + self.quiet_after_talk());
         }
         self.hold_for_garbled_bytes(now);
         if self.reply_spent(now)
@@ -343,9 +380,59 @@ impl BusMaster {
         let Some(p) = self.pending else {
             return false;
         };
+        if self.other_reply_begun(&p) {
+            return false;
+        }
         let received = self.counters.bytes_received - p.received_before;
         let skipped = self.skipped_bytes() - p.skipped_before;
-        now >= p.complete_at && received.saturating_sub(skipped) >= p.expected.wire_len() as u64
+        let foreign = self.foreign_bytes - p.foreign_before;
+        now >= p.complete_at
+            && received.saturating_sub(skipped + foreign) >= p.expected.wire_len() as u64
+    }
+
+    /// Whether the decoder holds the start of a return packet that is not known to be the
+    /// reply `p` awaits (its header not in yet, or another servo's or registers'): its rest is
+    /// on its way, and the bytes read so far do not tell that the awaited servo has finished.
+    fn other_reply_begun(&self, p: &Pending) -> bool {
+        let Some(begun) = self.decoder.begun_reply() else {
+            return false;
+        };
+        let awaited = |h: &BegunHeader| {
+            self.servos.get(p.index).is_some_and(|s| s.id().get() == h.id)
+                && matches!(p.expected, ExpectedReply::Registers { address, .. } if address == h.address)
+        };
+        !begun.header.as_ref().is_some_and(awaited)
+    }
+
+    /// The bytes still to come of a return packet begun in the decoder, if one is and they
+    /// are not all in: for the reply awaited (its servo and registers in the header), as many
+    /// as that reply has (the servo's length byte may be garbled); for any other, as many as
+    /// its header says, or as the longest reply before the header is in.
+    fn begun_reply_missing(&self) -> Option<usize> {
+        let begun = self.decoder.begun_reply()?;
+        let missing = match self.pending {
+            Some(p) if !self.other_reply_begun(&p) => {
+                p.expected.wire_len().saturating_sub(begun.buffered)
+            }
+            _ => begun.missing(),
+        };
+        (missing > 0).then_some(missing)
+    }
+
+    /// How long after the last byte of a servo's talk the line is quiet: a few byte times, and
+    /// the lateness learned for replies (an adapter that holds bytes back).
+    fn quiet_after_talk(&self) -> Duration {
+        self.cfg.wire_time(QUIET_AFTER_GARBLED_BYTES) + self.reply_lateness
+    }
+
+    /// Nothing is written before `until` (a servo may be talking).
+    fn hold_line(&mut self, until: Instant) {
+        self.line_busy_until = Some(self.line_busy_until.map_or(until, |t| t.max(until)));
+    }
+
+    /// Whether a servo may still be talking at `now` with no reply awaited.
+    pub(super) fn line_busy(&self, now: Instant) -> bool {
+        self.line_busy_until.is_some_and(|t| now < t)
     }
 
     /// The servo awaited may have sent a reply whose header was garbled: the decoder skips its
@@ -360,7 +447,7 @@ impl BusMaster {
     /// holds the start of a reply whose rest has not come, the allowance stands: the noise,
     /// not the reply, made up the count. A clean reply still ends the request at once.
     fn hold_for_garbled_bytes(&mut self, now: Instant) {
-        let quiet = self.cfg.wire_time(QUIET_AFTER_GARBLED_BYTES) + self.reply_lateness;
+        let quiet = self.quiet_after_talk();
         let turnaround = self.cfg.turnaround;
         // A reply begun in the decoder is left its allowance: noise before it made the count.
         let reply_begun = self.decoder.buffered() > 0;
@@ -394,10 +481,12 @@ impl BusMaster {
     fn on_reply(&mut self, reply: ReturnPacket, now: Instant) {
         let Some(p) = self.pending else {
             self.counters.unexpected_replies += 1;
+            self.foreign_bytes += reply.wire_len() as u64;
             return;
         };
         let ExpectedReply::Registers { address, length } = p.expected else {
             self.counters.unexpected_replies += 1;
+            self.foreign_bytes += reply.wire_len() as u64;
             return;
         };
         let Some(servo) = self.servos.get(p.index) else {
@@ -409,6 +498,7 @@ impl BusMaster {
             || reply.data.len() != usize::from(length)
         {
             self.counters.unexpected_replies += 1;
+            self.foreign_bytes += reply.wire_len() as u64;
             return;
         }
         self.pending = None;
@@ -520,6 +610,15 @@ impl BusMaster {
     /// The pending request's deadline has passed (or its reply came garbled): it ends as a
     /// timeout, counted for its servo.
     fn expire_pending(&mut self, now: Instant) {
+        // A reply begun (the servo answered late, or this is another servo's): the line is
+        // busy until its rest can have come, counted from its latest byte.
+        if let Some(missing) = self.begun_reply_missing() {
+            let ends =
+                self.last_input_at + self.cfg.wire_time(missing) + self.quiet_after_talk();
+            if ends > now {
+                self.hold_line(ends);
+            }
+        }
         // A complete reply may sit behind a candidate that never completed.
         self.decoder.abandon_partial();
         self.drain_decoder(now);
@@ -540,6 +639,7 @@ impl BusMaster {
     pub fn handle_port_lost(&mut self, reason: impl Into<String>, now: Instant) {
         self.touch(now);
         self.pending = None;
+        self.line_busy_until = None;
         self.decoder.clear();
         if self.port_open {
             self.port_open = false;
@@ -554,6 +654,7 @@ impl BusMaster {
     pub fn handle_port_back(&mut self, now: Instant) {
         self.touch(now);
         self.pending = None;
+        self.line_busy_until = None;
         self.decoder.clear();
         self.wire_free_at = now;
         self.resend_all = true;
@@ -573,6 +674,15 @@ impl BusMaster {
         if let Some(p) = self.pending {
             return Some(p.deadline);
         }
+        let due = self.next_due()?;
+        Some(match self.line_busy_until {
+            Some(busy) if self.line_busy(self.now) => due.max(busy),
+            _ => due,
+        })
+    }
+
+    /// [`BusMaster::poll_timeout`] with no reply pending, as if the line were quiet.
+    fn next_due(&self) -> Option<Instant> {
         if self.shutdown.is_some() {
             return None;
         }

@@ -43,6 +43,34 @@ pub enum Decoded {
     },
 }
 
+/// A return packet whose first bytes the decoder holds (see [`Decoder::begun_reply`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BegunReply {
+    /// Its bytes buffered so far.
+    pub buffered: usize,
+    /// Its header, once the bytes up to its Length are in.
+    pub header: Option<BegunHeader>,
+}
+
+/// The header of a begun return packet: whose it is, and how long it says it is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BegunHeader {
+    pub id: u8,
+    pub address: u8,
+    pub length: u8,
+}
+
+impl BegunReply {
+    /// The bytes still to come: as its header says, or, before the header is in, as many as
+    /// the longest return packet has.
+    pub fn missing(&self) -> usize {
+        let total = self.header.map_or(HEAD_LEN + MEMORY_MAP_LEN + 1, |h| {
+            HEAD_LEN + usize::from(h.length) + 1
+        });
+        total.saturating_sub(self.buffered)
+    }
+}
+
 /// Streaming decoder; see the module docs.
 #[derive(Debug, Default, Clone)]
 pub struct Decoder {
@@ -86,6 +114,25 @@ impl Decoder {
     /// Bytes received but not yet consumed.
     pub fn buffered(&self) -> usize {
         self.buf.len() - self.start
+    }
+
+    /// The return packet begun at the front of the buffer, if its first bytes are a return
+    /// packet's header: the rest of it is still on its way (or the bytes were noise).
+    pub fn begun_reply(&self) -> Option<BegunReply> {
+        let pending = &self.buf[self.start..];
+        match pending {
+            [first, ..] if *first != RETURN_HEADER[0] => None,
+            [_, second, ..] if *second != RETURN_HEADER[1] => None,
+            [] => None,
+            _ => Some(BegunReply {
+                buffered: pending.len(),
+                header: (pending.len() >= HEAD_LEN - 1).then(|| BegunHeader {
+                    id: pending[2],
+                    address: pending[4],
+                    length: pending[5],
+                }),
+            }),
+        }
     }
 
     /// Forget everything buffered (e.g. after reopening the port).
@@ -321,6 +368,40 @@ mod tests {
                 _ => None,
             })
             .collect()
+    }
+
+    #[test]
+    fn a_begun_reply_tells_whose_it_is_and_how_much_is_missing() {
+        let bytes = reply(3, 250).to_bytes();
+        let mut d = Decoder::new();
+        assert_eq!(d.begun_reply(), None);
+        d.push(&bytes[..1]);
+        let first = d.begun_reply().expect("a return header's first byte");
+        assert_eq!(first.header, None);
+        assert_eq!(first.missing(), HEAD_LEN + MEMORY_MAP_LEN + 1 - 1, "the longest reply");
+        d.push(&bytes[1..10]);
+        let begun = d.begun_reply().unwrap();
+        assert_eq!(
+            begun.header,
+            Some(BegunHeader {
+                id: 3,
+                address: bytes[4],
+                length: bytes[5]
+            })
+        );
+        assert_eq!(begun.missing(), bytes.len() - 10);
+        d.push(&bytes[10..]);
+        assert!(matches!(d.poll(), Some(Ok(Decoded::Reply(_)))));
+        assert_eq!(d.begun_reply(), None, "nothing begun once it is whole");
+        // Noise, or a command's echo, is no reply begun.
+        d.push(&[0x00, 0x12]);
+        assert_eq!(d.begun_reply(), None);
+        let mut echo = Decoder::new();
+        echo.push(&COMMAND_HEADER);
+        assert_eq!(echo.begun_reply(), None);
+        let mut not_header = Decoder::new();
+        not_header.push(&[RETURN_HEADER[0], 0x00]);
+        assert_eq!(not_header.begun_reply(), None);
     }
 
     #[test]

@@ -23,7 +23,7 @@ impl BusMaster {
     /// writing: several packets may be due at once.
     pub fn poll_transmit(&mut self, now: Instant) -> Option<Transmit> {
         self.touch(now);
-        if self.pending.is_some() {
+        if self.pending.is_some() || self.line_busy(now) {
             return None;
         }
         if self.shutdown.is_some() {
@@ -270,6 +270,7 @@ impl BusMaster {
                 skipped_before: self.skipped_bytes(),
                 request_ends: self.wire_free_at,
                 heard: 0,
+                foreign_before: self.foreign_bytes,
             });
         }
         Transmit {

@@ -10,6 +10,7 @@
 //! - `exchange`: one request at a time on the wire, and its reply deadline;
 //! - `reply_looks`: when the bus thread looks for a reply, and what it learns;
 //! - `bad_replies`: echoes, garbage, bad sums and replies of another servo;
+//! - `late_replies`: a reply after its allowance, or begun when it ends: never a word over it;
 //! - `reply_quality`: a servo's share of bad replies (degraded, never lost);
 //! - `health`: a servo lost, probed, back, restarted;
 //! - `alarms`: temperature alarm and error, stall;
@@ -569,6 +570,7 @@ mod force;
 mod goal_timing;
 mod goals;
 mod health;
+mod late_replies;
 mod port;
 mod reply_looks;
 mod reply_quality;
