@@ -398,7 +398,9 @@ impl BusMaster {
             return false;
         };
         let awaited = |h: &BegunHeader| {
-            self.servos.get(p.index).is_some_and(|s| s.id().get() == h.id)
+            self.servos
+                .get(p.index)
+                .is_some_and(|s| s.id().get() == h.id)
                 && matches!(p.expected, ExpectedReply::Registers { address, .. } if address == h.address)
         };
         !begun.header.as_ref().is_some_and(awaited)
@@ -613,8 +615,7 @@ impl BusMaster {
         // A reply begun (the servo answered late, or this is another servo's): the line is
         // busy until its rest can have come, counted from its latest byte.
         if let Some(missing) = self.begun_reply_missing() {
-            let ends =
-                self.last_input_at + self.cfg.wire_time(missing) + self.quiet_after_talk();
+            let ends = self.last_input_at + self.cfg.wire_time(missing) + self.quiet_after_talk();
             if ends > now {
                 self.hold_line(ends);
             }

@@ -378,7 +378,11 @@ mod tests {
         d.push(&bytes[..1]);
         let first = d.begun_reply().expect("a return header's first byte");
         assert_eq!(first.header, None);
-        assert_eq!(first.missing(), HEAD_LEN + MEMORY_MAP_LEN + 1 - 1, "the longest reply");
+        assert_eq!(
+            first.missing(),
+            HEAD_LEN + MEMORY_MAP_LEN + 1 - 1,
+            "the longest reply"
+        );
         d.push(&bytes[1..10]);
         let begun = d.begun_reply().unwrap();
         assert_eq!(

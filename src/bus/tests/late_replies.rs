@@ -13,13 +13,19 @@ fn servo_2_awaited_while_servo_1_is_late() -> (Rig, Vec<u8>, Vec<u8>) {
     let t0 = rig.t0;
     let first = rig.m.poll_transmit(t0).expect("servo 1's identity read");
     assert_eq!(first.kind, TxKind::Init(id(1)));
-    let late = rig.servo(1).handle(&first.bytes).expect("a read has a reply");
+    let late = rig
+        .servo(1)
+        .handle(&first.bytes)
+        .expect("a read has a reply");
     let deadline = rig.m.poll_timeout().unwrap();
     rig.m.handle_timeout(deadline);
     assert!(!rig.m.reply_pending(), "servo 1's read timed out");
     let second = rig.m.poll_transmit(deadline).expect("servo 2's read");
     assert_eq!(second.kind, TxKind::Init(id(2)));
-    let awaited = rig.servo(2).handle(&second.bytes).expect("a read has a reply");
+    let awaited = rig
+        .servo(2)
+        .handle(&second.bytes)
+        .expect("a read has a reply");
     rig.t = deadline;
     (rig, late, awaited)
 }
@@ -42,7 +48,11 @@ fn a_late_reply_read_alone_does_not_free_the_bus_before_the_awaited_one() {
     rig.m.handle_input(&reply, complete_at + ms(1));
     assert!(!rig.m.reply_pending(), "servo 2's reply taken");
     assert_eq!(rig.m.counters().timeouts, 1, "servo 1's only");
-    assert_eq!(rig.m.counters().unexpected_replies, 1, "servo 1's late reply");
+    assert_eq!(
+        rig.m.counters().unexpected_replies,
+        1,
+        "servo 1's late reply"
+    );
 }
 
 #[test]
@@ -52,7 +62,8 @@ fn a_late_reply_and_the_awaited_one_back_to_back_leave_the_awaited_one_its_tail(
     // One read holds servo 1's late reply and the first half of servo 2's: as many bytes as a
     // reply, and more, but servo 2's is only begun.
     let (head, tail) = reply.split_at(reply.len() / 2);
-    rig.m.handle_input(&[late.clone(), head.to_vec()].concat(), complete_at);
+    rig.m
+        .handle_input(&[late.clone(), head.to_vec()].concat(), complete_at);
     assert!(rig.m.reply_pending(), "servo 2's reply is begun");
     let tail_at = complete_at + rig.wire(tail.len());
     assert!(
@@ -86,7 +97,9 @@ fn a_reply_begun_when_its_allowance_ends_holds_the_bus_until_it_can_have_ended()
     assert!(
         rig.m.poll_timeout().is_some_and(|t| t >= tail_ends),
         "the bus is held until the reply can have ended: {:?} before it",
-        rig.m.poll_timeout().map(|t| tail_ends.saturating_duration_since(t))
+        rig.m
+            .poll_timeout()
+            .map(|t| tail_ends.saturating_duration_since(t))
     );
     // The tail comes, a little late: the bus is free a few byte times after it.
     let tail_at = tail_ends + us(300);
