@@ -47,6 +47,32 @@ pub fn request_fifo(priority: i32) -> io::Result<()> {
     }
 }
 
+/// Make the calling thread a normal (SCHED_OTHER) one again, at the nice value it had (a real-time
+/// thread keeps its nice value, unused, beside its priority). Always allowed: a thread may give
+/// up real-time scheduling without privilege.
+pub fn request_normal() -> io::Result<()> {
+    let param = libc::sched_param { sched_priority: 0 };
+    let policy = libc::SCHED_OTHER | libc::SCHED_RESET_ON_FORK;
+    // SAFETY: pid 0 is the calling thread; the kernel only reads `param`.
+    if unsafe { libc::sched_setscheduler(0, policy, &param) } == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+/// The CPU time the calling thread has used (`CLOCK_THREAD_CPUTIME_ID`: a vDSO read, no system
+/// call on the kernels the bridge runs on).
+pub fn thread_cpu_time() -> Duration {
+    let mut t = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes a timespec into `t`, a valid one; this clock always exists.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) };
+    Duration::new(t.tv_sec as u64, t.tv_nsec as u32)
+}
+
 /// The calling thread's nice value.
 pub fn nice() -> io::Result<i32> {
     // getpriority returns -1 both for nice -1 and for an error, so errno tells them apart.
@@ -177,6 +203,49 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A thread that gave up real-time scheduling is a normal one, and may ask for it again.
+    #[test]
+    fn a_real_time_thread_can_become_a_normal_one_and_back() {
+        let (granted, normal, again) = in_a_thread(|| {
+            let granted = request_fifo(10).is_ok();
+            let normal = request_normal().map(|()| policy());
+            let again = request_fifo(10).map(|()| policy());
+            (granted, normal, again)
+        });
+        assert_eq!(normal.expect("always allowed"), libc::SCHED_OTHER);
+        if granted {
+            assert_eq!(
+                again.expect("granted once, granted again"),
+                libc::SCHED_FIFO
+            );
+        } else {
+            println!("SCHED_FIFO refused here: only the way down was checked");
+        }
+    }
+
+    #[test]
+    fn the_thread_s_cpu_time_grows_with_its_work_and_not_with_its_sleep() {
+        let (slept, worked) = in_a_thread(|| {
+            let start = thread_cpu_time();
+            std::thread::sleep(Duration::from_millis(50));
+            let slept = thread_cpu_time() - start;
+            let start = thread_cpu_time();
+            let spin = std::time::Instant::now();
+            while spin.elapsed() < Duration::from_millis(30) {
+                std::hint::spin_loop();
+            }
+            (slept, thread_cpu_time() - start)
+        });
+        assert!(
+            slept < Duration::from_millis(10),
+            "asleep 50 ms, used {slept:?}"
+        );
+        assert!(
+            worked > Duration::from_millis(1),
+            "spun 30 ms, used {worked:?}"
+        );
     }
 
     #[test]

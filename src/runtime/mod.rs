@@ -122,7 +122,8 @@ pub struct RunOptions {
     pub view: Option<watch::Sender<BridgeView>>,
     /// Where to keep the flight record; `None`: no record.
     pub record_dir: Option<PathBuf>,
-    /// Check each bus port's USB latency timer first (real adapters only).
+    /// A run on the aircraft (the `run` command): check each bus port's USB latency timer first
+    /// (real adapters only), lock memory, and ask real-time scheduling for the loop and links.
     pub check_latency: bool,
     /// The mapping file that parameter changes from a ground station are saved into;
     /// `None`: parameters can be read but not changed.
@@ -330,9 +331,9 @@ impl Bridge {
             .chain(&cfg.mavlink.gcs)
             .cloned()
             .collect();
-        // Sockets, parsing and signatures on a normal thread of their own; the loop (real-time
-        // in `run`) only takes what the readers accepted.
-        let link_thread = LinkThread::start().map_err(RunError::LinkThread)?;
+        // Sockets, parsing and signatures on a thread of their own (real-time within a budget in
+        // `run`); the loop only takes what the readers accepted.
+        let link_thread = LinkThread::start(check_latency).map_err(RunError::LinkThread)?;
         let mut links = Vec::with_capacity(addresses.len());
         for address in &addresses {
             let address = address.clone();
