@@ -83,7 +83,8 @@ fn the_ardupilot_plane_has_four_servos_on_one_bus() {
     // 0.8 × SCHED_LOOP_RATE 50 Hz: the most stock Plane grants.
     assert_eq!(c.mavlink.output_rate_hz, 40.0);
     assert_eq!(c.mavlink.component_id, 140);
-    assert_eq!(c.mavlink.system_id, None);
+    // SYSID_THISMAV's default: back on the autopilot's first output after a restart.
+    assert_eq!(c.mavlink.system_id, Some(1));
     assert_eq!(c.bridge.on_exit, ExitAction::Hold);
     assert_eq!(c.buses.len(), 1);
     assert_eq!(c.buses[0].baud, BaudRate::B115200);
@@ -121,6 +122,7 @@ fn the_ardupilot_plane_has_four_servos_on_one_bus() {
 fn the_px4_example_listens_on_the_onboard_link() {
     let c = load("px4-vtol.toml");
     assert_eq!(c.mavlink.connection, "udpin:0.0.0.0:14540");
+    assert_eq!(c.mavlink.system_id, Some(1), "MAV_SYS_ID's default");
     assert_eq!(c.buses[0].baud, BaudRate::B460800);
     // PX4's disarmed 900 µs holds every servo.
     for s in &c.servos {

@@ -55,6 +55,12 @@ fn the_packaged_mapping_file_is_valid_and_records_into_the_state_folder() {
         Config::parse_at(&text, DEFAULT_CONFIG, Some(path)).unwrap_or_else(|e| panic!("{e}"));
     assert!(config.record.enabled);
     assert_eq!(
+        config.mavlink.system_id,
+        Some(1),
+        "the service as installed is back on the autopilot's outputs within 1 s of a kill only \
+         with the autopilot's system id"
+    );
+    assert_eq!(
         config.record.dir_for(Some(path)),
         Path::new(STATE_DIR).join("records")
     );
