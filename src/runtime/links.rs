@@ -7,7 +7,7 @@
 
 use crate::config::Config;
 use crate::mavlink::LinkId;
-use crate::mavlink::admission::{Admission, Verdict};
+use crate::mavlink::admission::{Admission, Sender, Verdict};
 use crate::mavlink::outbox::{Outbox, Queued};
 use crate::mavlink::signing::{self, Incoming, Signed, Signing, TimestampFile};
 use ::mavlink::dialects::common::MavMessage;
@@ -652,7 +652,9 @@ struct Reader {
     address: String,
     signing: Option<SharedSigning>,
     autopilot: KnownAutopilot,
-    admission: Mutex<Admission>,
+    admission: Arc<Mutex<Admission>>,
+    /// Wakes the admission's keeper (see [`keep_admission`]): a message was held or dropped.
+    keeper: Notify,
     to_core: mpsc::Sender<(LinkId, MavHeader, MavMessage)>,
 }
 
@@ -679,15 +681,16 @@ impl Reader {
             let Some((header, msg)) = accepted else {
                 continue;
             };
-            let now = Instant::now();
-            let verdict = {
-                let mut admission = lock(&self.admission);
-                let verdict = admission.judge(&header, &msg, self.autopilot.get(), now);
-                if let Some(news) = admission.news(now) {
-                    tracing::warn!(address = %self.address, "{news}");
-                }
-                verdict
-            };
+            let verdict = lock(&self.admission).judge(
+                &header,
+                &msg,
+                Sender::of(from),
+                self.autopilot.get(),
+                Instant::now(),
+            );
+            if matches!(verdict, Verdict::Held | Verdict::OverBudget) {
+                self.keeper.notify_one();
+            }
             if verdict == Verdict::Pass
                 && self
                     .to_core
@@ -745,27 +748,44 @@ impl Reader {
 /// socket is read.
 const HANDOVER: usize = 1024;
 
+/// A link's reader: its tasks, and its admission (for what it dropped, said at exit).
+pub struct SpawnedReader {
+    pub tasks: [JoinHandle<()>; 2],
+    pub admission: Arc<Mutex<Admission>>,
+}
+
 /// A task that reads `link` and hands each message, with the link's id, to `to_core` (see
-/// [`Reader::take`]); it ends when the core is gone. A `udpin` link sends, from then on, to
-/// every address a datagram with an accepted frame came from recently.
+/// [`Reader::take`]), and one that hands on the PARAM_SETs its admission held and says what it
+/// dropped ([`keep_admission`]); the reader ends when the core is gone. A `udpin` link sends,
+/// from then on, to every address a datagram with an accepted frame came from recently.
+/// `autopilot_component`: the mapping's.
+#[allow(clippy::too_many_arguments)]
 pub fn spawn_reader(
     link: Link,
     link_id: LinkId,
     address: String,
     signing: Option<SharedSigning>,
     autopilot: KnownAutopilot,
+    autopilot_component: u8,
     to_core: mpsc::Sender<(LinkId, MavHeader, MavMessage)>,
-) -> JoinHandle<()> {
+) -> SpawnedReader {
+    let admission = Arc::new(Mutex::new(Admission::new(
+        link_id,
+        autopilot_component,
+        Instant::now(),
+    )));
     let reader = Arc::new(Reader {
         link,
         link_id,
         address,
         signing,
         autopilot,
-        admission: Mutex::new(Admission::new(link_id, Instant::now())),
+        admission: admission.clone(),
+        keeper: Notify::new(),
         to_core,
     });
-    tokio::spawn(async move {
+    let keeper = tokio::spawn(keep_admission(reader.clone()));
+    let task = tokio::spawn(async move {
         let mut buf = vec![0u8; 65_536];
         loop {
             let (frames, from) = match reader.link.recv(&mut buf).await {
@@ -780,7 +800,47 @@ pub fn spawn_reader(
                 return;
             }
         }
-    })
+    });
+    SpawnedReader {
+        tasks: [task, keeper],
+        admission,
+    }
+}
+
+/// Hand on the PARAM_SETs `reader`'s admission held as their senders' budgets refill, and say
+/// what it dropped and coalesced when due; asleep while nothing is held or to be said. Ends
+/// when the core is gone.
+async fn keep_admission(reader: Arc<Reader>) {
+    loop {
+        let next = lock(&reader.admission).next_due(Instant::now());
+        match next {
+            None => reader.keeper.notified().await,
+            Some(at) => {
+                tokio::select! {
+                    () = tokio::time::sleep_until(at.into()) => {}
+                    () = reader.keeper.notified() => {}
+                }
+            }
+        }
+        let now = Instant::now();
+        let (released, news) = {
+            let mut admission = lock(&reader.admission);
+            (admission.release(now), admission.news(now))
+        };
+        if let Some(news) = news {
+            tracing::warn!(address = %reader.address, "{news}");
+        }
+        for (header, msg) in released {
+            if reader
+                .to_core
+                .send((reader.link_id, header, msg))
+                .await
+                .is_err()
+            {
+                return;
+            }
+        }
+    }
 }
 
 /// The frame of `queued` with sequence number `sequence`, signed when signing is on; waits,

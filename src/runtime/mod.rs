@@ -262,6 +262,8 @@ struct Bridge {
     record: Option<RecordHandle>,
     signing: Option<SharedSigning>,
     writers: Vec<LinkWriter>,
+    /// Each link's admission of messages, for what it dropped (said at the stop).
+    admissions: Vec<std::sync::Arc<std::sync::Mutex<crate::mavlink::admission::Admission>>>,
     /// The links (the autopilot's, then the ground station's), for what they count.
     links: Vec<Link>,
     /// The links' readers and the buses' event forwarders.
@@ -360,6 +362,7 @@ impl Bridge {
         let (message_tx, messages) = mpsc::channel(1024);
         let mut tasks = Vec::new();
         let mut writers = Vec::new();
+        let mut admissions = Vec::new();
         let link_list = links.clone();
         let known_autopilot = KnownAutopilot::default();
         known_autopilot.set(core.autopilot());
@@ -367,14 +370,17 @@ impl Bridge {
             let _on_link_thread = link_thread.handle().enter();
             for (link_id, (link, address)) in links.into_iter().zip(addresses).enumerate() {
                 writers.push(LinkWriter::spawn(link.clone(), link_id, signing.clone()));
-                tasks.push(links::spawn_reader(
+                let reader = links::spawn_reader(
                     link,
                     link_id,
                     address,
                     signing.clone(),
                     known_autopilot.clone(),
+                    cfg.mavlink.autopilot_component_id,
                     message_tx.clone(),
-                ));
+                );
+                tasks.extend(reader.tasks);
+                admissions.push(reader.admission);
             }
         }
         let (event_tx, bus_events) = mpsc::unbounded_channel();
@@ -397,6 +403,7 @@ impl Bridge {
             record,
             signing,
             writers,
+            admissions,
             links: link_list,
             tasks,
             messages,
@@ -741,6 +748,15 @@ impl Bridge {
         }
         for task in self.tasks {
             task.abort();
+        }
+        for admission in &self.admissions {
+            let summary = admission
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .summary();
+            if let Some(summary) = summary {
+                tracing::warn!("{summary}");
+            }
         }
         let unsent: usize = self.writers.iter().map(LinkWriter::waiting).sum();
         if unsent > 0 {
