@@ -5,11 +5,11 @@
 //! outputs at 50 Hz and listens for the bridge's HEARTBEATs. Each flood is judged against a
 //! quiet spell of the same length before it:
 //!
-//! - the bridge's real-time threads take under 30 % of a core: the links' thread, a real-time
-//!   one while quiet (so that the autopilot's datagrams wait for no ordinary program), runs as
-//!   a normal one while the flood lasts, and is a real-time one again after it (judged where
-//!   this machine grants real-time scheduling, as it does to root; refused under `CI`, the
-//!   test fails: a CI that cannot judge it must say so);
+//! - the bridge's real-time threads take under 30 % of a core: the MAVLink loop's thread, which
+//!   reads the links, is a real-time one while quiet (so that the autopilot's datagrams wait
+//!   for no ordinary program), runs as a normal one while the flood lasts, and is a real-time
+//!   one again after it (judged where this machine grants real-time scheduling, as it does to
+//!   root; refused under `CI`, the test fails: a CI that cannot judge it must say so);
 //! - the servos keep following: at least 90 % of the quiet spell's long packets;
 //! - the autopilot keeps hearing the bridge: at least 80 % of the quiet spell's HEARTBEATs.
 
@@ -32,8 +32,6 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use tempdir::TempDir;
 
 const KEY: [u8; 32] = [0x5e; 32];
-/// The name of the bridge's thread that reads and writes the MAVLink links.
-const LINKS_THREAD: &str = "mavlink links";
 /// Each spell, quiet or flooded.
 const SPELL: Duration = Duration::from_secs(5);
 
@@ -240,9 +238,9 @@ fn threads(pid: u32) -> Vec<(u32, String, u64, u64)> {
     threads
 }
 
-/// The scheduling policy of `pid`'s thread named `name`.
-fn policy_of(pid: u32, name: &str) -> Option<u64> {
-    threads(pid).into_iter().find(|t| t.1 == name).map(|t| t.2)
+/// The scheduling policy of `pid`'s main thread, the MAVLink loop's (which reads the links).
+fn loop_policy(pid: u32) -> Option<u64> {
+    threads(pid).into_iter().find(|t| t.0 == pid).map(|t| t.2)
 }
 
 /// The CPU time (clock ticks) `pid`'s threads used while real-time ones, sampled every 10 ms
@@ -290,8 +288,8 @@ fn count_long_packets(events: std::sync::mpsc::Receiver<BusEvent>) -> Arc<Atomic
 /// What one spell saw.
 #[derive(Debug, Clone, Copy)]
 struct Spell {
-    /// The links' thread's policy as the spell ends.
-    links_policy: Option<u64>,
+    /// The loop's thread's policy as the spell ends.
+    loop_policy: Option<u64>,
     realtime_share: f64,
     long_packets: u64,
     heartbeats: u64,
@@ -379,12 +377,12 @@ channel = 2
                 0
             }
         };
-        let links_policy = policy_of(pid, LINKS_THREAD);
+        let loop_policy = loop_policy(pid);
         stop.store(true, Ordering::Relaxed);
         let ticks = sampler.join().unwrap();
         let seconds = start.elapsed().as_secs_f64();
         let seen = Spell {
-            links_policy,
+            loop_policy,
             realtime_share: ticks as f64 / ticks_per_second() / seconds,
             long_packets: long_packets.load(Ordering::Relaxed) - goals,
             heartbeats: autopilot.heartbeats.load(Ordering::Relaxed) - beats,
@@ -412,16 +410,16 @@ channel = 2
     let mut failures = Vec::new();
     for what in [Flood::ValidFrames, Flood::BadSignatures, Flood::Garbage] {
         let quiet = spell(None);
-        if granted && quiet.links_policy != fifo {
+        if granted && quiet.loop_policy != fifo {
             failures.push(format!(
-                "before {what:?}: the links' thread is not a real-time one ({:?})",
-                quiet.links_policy
+                "before {what:?}: the loop's thread is not a real-time one ({:?})",
+                quiet.loop_policy
             ));
         }
         let flooded = spell(Some(what));
-        if granted && flooded.links_policy == fifo {
+        if granted && flooded.loop_policy == fifo {
             failures.push(format!(
-                "{what:?}: the links' thread is still a real-time one as the flood ends"
+                "{what:?}: the loop's thread is still a real-time one as the flood ends"
             ));
         }
         if flooded.realtime_share >= 0.30 {

@@ -1,5 +1,6 @@
 //! The MAVLink links of a running bridge: opening them, their readers (verifying signatures
-//! when signing is on) and their writers.
+//! when signing is on) and their writers, all tasks on the loop's own thread (see
+//! [`super::governor`] for what keeps a flood from holding it at real-time priority).
 //!
 //! Each link sends from an [`Outbox`] of its own, emptied by a task of its own: the bridge's
 //! loop only queues, so a link whose peer does not read holds neither the other link nor a
@@ -31,205 +32,6 @@ const RECEIVE_RETRY: Duration = Duration::from_millis(20);
 const RECONNECT_EVERY: Duration = Duration::from_secs(1);
 /// How long after a failed write of a timestamp reservation it is tried again.
 const RESERVATION_RETRY: Duration = Duration::from_secs(1);
-
-/// The thread the links live on, with a tokio runtime of its own, where every socket is bound,
-/// read and written, every datagram parsed and every signature checked and made. The MAVLink
-/// loop only takes the messages the readers accepted and queues what it sends.
-///
-/// In `run` the thread is a real-time one from its first calm second (SCHED_FIFO
-/// [`LINKS_PRIORITY`], below the loop and the
-/// bus threads), so that the autopilot's datagrams reach the loop the moment they come, whatever
-/// else the companion computer runs (a camera, ROS, a logger): a goal waits for no ordinary
-/// program. It has a budget: a [`Governor`] measures the thread's CPU time, and when input
-/// takes more than [`LINKS_BUDGET`] of a core (a stranger's valid frames, bad signatures,
-/// garbage), the thread runs as a normal one until the input calms: a flood then costs the
-/// time every ordinary program shares, never the real-time threads'.
-pub struct LinkThread {
-    handle: tokio::runtime::Handle,
-    stop: Option<tokio::sync::oneshot::Sender<()>>,
-    thread: Option<std::thread::JoinHandle<()>>,
-}
-
-/// The real-time priority of the links' thread while within its budget: below the MAVLink loop
-/// ([`super::LOOP_PRIORITY`]), which takes what the readers accepted.
-pub const LINKS_PRIORITY: i32 = super::LOOP_PRIORITY - 1;
-
-/// The share of a core the links' thread may take and stay a real-time one: a hundred times
-/// what an autopilot and a ground station at their usual rates cost it.
-pub const LINKS_BUDGET: f64 = 0.2;
-
-/// How often the [`Governor`] looks at the thread's CPU time.
-const GOVERN_EVERY: Duration = Duration::from_millis(100);
-
-/// How long input must stay under half the budget before the thread is a real-time one again.
-const CALM_FOR: Duration = Duration::from_secs(1);
-
-impl LinkThread {
-    /// Start the thread (named `mavlink links`), a real-time one within its budget when
-    /// `realtime` (refused without the grant the bus threads need: then a normal one, said at
-    /// debug level, as for the loop).
-    pub fn start(realtime: bool) -> std::io::Result<LinkThread> {
-        let runtime = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()?;
-        let handle = runtime.handle().clone();
-        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-        let thread = std::thread::Builder::new()
-            .name("mavlink links".into())
-            .spawn(move || {
-                runtime.block_on(async move {
-                    if realtime {
-                        tokio::select! {
-                            _ = stopped => {}
-                            () = govern() => {}
-                        }
-                    } else {
-                        let _ = stopped.await;
-                    }
-                });
-                // Dropping the runtime ends the tasks still on it.
-            })?;
-        Ok(LinkThread {
-            handle,
-            stop: Some(stop),
-            thread: Some(thread),
-        })
-    }
-
-    /// The thread's runtime: tasks spawned on it (or while it is entered) run on the thread.
-    pub fn handle(&self) -> &tokio::runtime::Handle {
-        &self.handle
-    }
-}
-
-/// Keep the calling thread (the links') a real-time one within [`LINKS_BUDGET`]: it starts as a
-/// normal thread (the links open, the signing timestamp is read), becomes a real-time one after
-/// [`CALM_FOR`] under half the budget, and, looked at every [`GOVERN_EVERY`], a normal one again
-/// while over it. Runs until the thread stops (a normal thread for good once real-time
-/// scheduling is refused: said at debug level the first time, as for the loop, and at warning
-/// level after a flood).
-async fn govern() {
-    let mut governor = Governor::new(lj9da_realtime::thread_cpu_time(), Instant::now());
-    let mut every = tokio::time::interval(GOVERN_EVERY);
-    every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut first = true;
-    loop {
-        every.tick().await;
-        let (cpu, now) = (lj9da_realtime::thread_cpu_time(), Instant::now());
-        match governor.look(cpu, now) {
-            Some(Change::Normal { share }) => match lj9da_realtime::request_normal() {
-                Ok(()) => tracing::warn!(
-                    "MAVLink input took {:.0} % of a core (more than the links' budget of \
-                     {:.0} %): the links run as a normal thread until it calms; goals and \
-                     replies keep their real-time threads",
-                    share * 100.0,
-                    LINKS_BUDGET * 100.0
-                ),
-                Err(e) => {
-                    tracing::warn!("the MAVLink links cannot leave real-time scheduling: {e}")
-                }
-            },
-            Some(Change::Realtime { calm_for }) => {
-                let asked = lj9da_realtime::request_fifo(LINKS_PRIORITY);
-                match (asked, std::mem::take(&mut first)) {
-                    (Ok(()), true) => {
-                        tracing::debug!("the MAVLink links run at SCHED_FIFO {LINKS_PRIORITY}");
-                    }
-                    (Ok(()), false) => tracing::info!(
-                        "MAVLink input calm for {:.1} s: the links run at real-time priority again",
-                        calm_for.as_secs_f64()
-                    ),
-                    (Err(e), true) => {
-                        tracing::debug!("the MAVLink links run without real-time scheduling: {e}");
-                        std::future::pending::<()>().await;
-                    }
-                    (Err(e), false) => {
-                        tracing::warn!(
-                            "the MAVLink links cannot return to real-time scheduling: {e}; they \
-                             stay a normal thread"
-                        );
-                        std::future::pending::<()>().await;
-                    }
-                }
-            }
-            None => {}
-        }
-    }
-}
-
-/// What the [`Governor`] asks of the links' thread.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Change {
-    /// Over budget: `share` of a core in the last look.
-    Normal { share: f64 },
-    /// Calm for `calm_for`.
-    Realtime { calm_for: Duration },
-}
-
-/// The links' thread's budget, from its CPU time: a real-time thread while its input takes at
-/// most [`LINKS_BUDGET`] of a core, a normal one from the look that sees more (and at the
-/// start), until [`CALM_FOR`] under half of it.
-#[derive(Debug)]
-pub struct Governor {
-    realtime: bool,
-    cpu: Duration,
-    at: Instant,
-    /// Since when the thread, a normal one, has stayed under half the budget.
-    calm_since: Option<Instant>,
-}
-
-impl Governor {
-    /// A normal thread, to become a real-time one, that has used `cpu` by `now`.
-    pub fn new(cpu: Duration, now: Instant) -> Self {
-        Governor {
-            realtime: false,
-            cpu,
-            at: now,
-            calm_since: None,
-        }
-    }
-
-    /// The thread has used `cpu` by `now`: what it should become, if anything.
-    pub fn look(&mut self, cpu: Duration, now: Instant) -> Option<Change> {
-        let wall = now.saturating_duration_since(self.at);
-        if wall.is_zero() {
-            return None;
-        }
-        let share = cpu.saturating_sub(self.cpu).as_secs_f64() / wall.as_secs_f64();
-        (self.cpu, self.at) = (cpu, now);
-        if self.realtime {
-            if share > LINKS_BUDGET {
-                self.realtime = false;
-                self.calm_since = None;
-                return Some(Change::Normal { share });
-            }
-            return None;
-        }
-        if share > LINKS_BUDGET / 2.0 {
-            self.calm_since = None;
-            return None;
-        }
-        let since = *self.calm_since.get_or_insert(now - wall);
-        let calm_for = now - since;
-        if calm_for >= CALM_FOR {
-            self.realtime = true;
-            self.calm_since = None;
-            return Some(Change::Realtime { calm_for });
-        }
-        None
-    }
-}
-
-impl Drop for LinkThread {
-    fn drop(&mut self) {
-        if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
-        }
-        if let Some(thread) = self.thread.take() {
-            let _ = thread.join();
-        }
-    }
-}
 
 /// One MAVLink link, carrying raw frames: the bridge numbers, signs and checks them itself.
 #[derive(Clone)]
@@ -506,8 +308,8 @@ impl SharedSigning {
         self.signing.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
-    /// The signing, unless a reader or writer holds it now: the real-time loop never waits
-    /// for the links' thread, which a flood may keep from running.
+    /// The signing, unless a reader or writer holds it now (across no wait: on the loop's one
+    /// thread, it never does).
     pub fn try_lock(&self) -> Option<MutexGuard<'_, Signing>> {
         match self.signing.try_lock() {
             Ok(guard) => Some(guard),
@@ -962,70 +764,6 @@ fn lock<T>(outbox: &Mutex<T>) -> MutexGuard<'_, T> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The links' thread, a normal one at the start, is a real-time one after a calm second; over
-    /// its budget it becomes a normal thread at the look that sees it, stays one while the input
-    /// goes on, and is a real-time one again after a calm second.
-    #[test]
-    fn the_governor_takes_real_time_away_over_budget_and_gives_it_back_after_a_calm_second() {
-        let t0 = Instant::now();
-        let ms = Duration::from_millis;
-        let mut g = Governor::new(ms(0), t0);
-        // The start (the links opening: 30 % of the first look) and a calm second.
-        assert_eq!(g.look(ms(30), t0 + ms(100)), None);
-        for n in 2..=10 {
-            assert_eq!(g.look(ms(30 + n), t0 + ms(100 * n)), None);
-        }
-        assert_eq!(
-            g.look(ms(41), t0 + ms(1100)),
-            Some(Change::Realtime { calm_for: ms(1000) })
-        );
-        // Ordinary traffic: 1 % of a core.
-        assert_eq!(g.look(ms(42), t0 + ms(1200)), None);
-        // A flood: 90 ms of 100.
-        assert!(matches!(
-            g.look(ms(132), t0 + ms(1300)),
-            Some(Change::Normal { share }) if (share - 0.9).abs() < 1e-9
-        ));
-        // It goes on (at normal priority the thread gets what it can): no change.
-        let mut cpu = ms(132);
-        let mut at = t0 + ms(1300);
-        for _ in 0..20 {
-            cpu += ms(60);
-            at += ms(100);
-            assert_eq!(g.look(cpu, at), None);
-        }
-        // Calm, but under a second: still a normal thread; a relapse restarts the count.
-        for _ in 0..5 {
-            cpu += ms(1);
-            at += ms(100);
-            assert_eq!(g.look(cpu, at), None);
-        }
-        cpu += ms(15);
-        at += ms(100);
-        assert_eq!(g.look(cpu, at), None, "15 % is over half the budget");
-        for _ in 0..9 {
-            cpu += ms(1);
-            at += ms(100);
-            assert_eq!(g.look(cpu, at), None);
-        }
-        cpu += ms(1);
-        at += ms(100);
-        assert_eq!(
-            g.look(cpu, at),
-            Some(Change::Realtime { calm_for: ms(1000) })
-        );
-        // Real-time again, and judged against the budget again.
-        assert_eq!(
-            g.look(cpu + ms(19), at + ms(100)),
-            None,
-            "19 % is within it"
-        );
-        assert!(matches!(
-            g.look(cpu + ms(19) + ms(21), at + ms(200)),
-            Some(Change::Normal { .. })
-        ));
-    }
 
     /// A datagram is whole: junk, or the start of a frame cut short, before or between frames
     /// loses none of them.

@@ -12,6 +12,7 @@
 //! data and waits.
 
 mod buses;
+pub mod governor;
 pub(crate) mod links;
 pub mod service;
 mod udp;
@@ -29,7 +30,7 @@ use ::mavlink::MavHeader;
 use ::mavlink::dialects::common::MavMessage;
 use buses::{Buses, bridge_event, forward_bus_events};
 pub use buses::{FRESH_FOR, report_of};
-use links::{KnownAutopilot, Link, LinkThread, LinkWriter, SharedSigning};
+use links::{KnownAutopilot, Link, LinkWriter, SharedSigning};
 use service::{Verdict, Watchdog};
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -66,8 +67,6 @@ pub enum RunError {
     },
     #[error(transparent)]
     Signing(#[from] signing::TimestampFileError),
-    #[error("cannot start the thread of the MAVLink links: {0}")]
-    LinkThread(#[source] std::io::Error),
 }
 
 /// One servo as the live table shows it.
@@ -253,8 +252,6 @@ pub async fn run(
 /// A running bridge: the core, its buses and links, and the channels that feed its loop.
 struct Bridge {
     cfg: Config,
-    /// Where the links' sockets are read and written (dropped last: it ends their tasks).
-    link_thread: LinkThread,
     /// The autopilot, for the readers' admission of messages.
     known_autopilot: KnownAutopilot,
     core: BridgeCore,
@@ -302,13 +299,22 @@ pub const LOOP_PRIORITY: i32 = crate::bus::driver::REALTIME_PRIORITY - 1;
 /// Ask for real-time scheduling (SCHED_FIFO at [`LOOP_PRIORITY`]) of the calling thread, the
 /// one that runs the MAVLink loop: it receives the autopilot's output messages and writes their
 /// goals to the buses, so a goal waits for no normal thread (a camera's, a logger's, a build)
-/// that holds the CPU when the message comes. It takes about 1.5 % of a core and sleeps between
-/// messages. Threads it starts afterwards run as normal ones. Refused without the grant the bus
-/// threads need too (their warning says which); then only said at debug level.
-fn request_realtime_loop() {
+/// that holds the CPU when the message comes. It reads the links too (no hop between threads for
+/// the autopilot's datagram), takes 1–2 % of a core and sleeps between messages; a flood makes
+/// it a normal thread while it lasts ([`governor`]). Threads it starts afterwards run as normal
+/// ones. Refused without the grant the bus threads need too (their warning says which); then
+/// only said at debug level.
+/// `true`: granted (the thread then keeps within [`governor::BUDGET`]).
+fn request_realtime_loop() -> bool {
     match lj9da_realtime::request_fifo(LOOP_PRIORITY) {
-        Ok(()) => tracing::debug!("the MAVLink loop runs at SCHED_FIFO {LOOP_PRIORITY}"),
-        Err(e) => tracing::debug!("the MAVLink loop runs without real-time scheduling: {e}"),
+        Ok(()) => {
+            tracing::debug!("the MAVLink loop runs at SCHED_FIFO {LOOP_PRIORITY}");
+            true
+        }
+        Err(e) => {
+            tracing::debug!("the MAVLink loop runs without real-time scheduling: {e}");
+            false
+        }
     }
 }
 
@@ -323,36 +329,24 @@ impl Bridge {
             mapping,
             service: _,
         } = opts;
-        if check_latency {
+        let realtime = check_latency && {
             // A run on the aircraft (the `run` command): its adapters and its memory.
             crate::deploy::check_buses(&cfg);
             crate::bus::driver::lock_memory();
-            request_realtime_loop();
-        }
+            request_realtime_loop()
+        };
         let addresses: Vec<String> = std::iter::once(&cfg.mavlink.connection)
             .chain(&cfg.mavlink.gcs)
             .cloned()
             .collect();
-        // Sockets, parsing and signatures on a thread of their own (real-time within a budget in
-        // `run`); the loop only takes what the readers accepted.
-        let link_thread = LinkThread::start(check_latency).map_err(RunError::LinkThread)?;
+        // Sockets, parsing and signatures on the loop's thread (within a budget in `run`: see
+        // `governor`); the loop takes only what the readers accepted.
         let mut links = Vec::with_capacity(addresses.len());
         for address in &addresses {
-            let address = address.clone();
-            let connecting = link_thread
-                .handle()
-                .spawn(async move { links::connect(&address).await });
-            links.push(
-                connecting
-                    .await
-                    .expect("connecting a link does not panic")?,
-            );
+            links.push(links::connect(address).await?);
         }
         tracing::info!(connection = %cfg.mavlink.connection, gcs = ?cfg.mavlink.gcs, "MAVLink links set up; waiting for the autopilot");
-        let signing = {
-            let _on_link_thread = link_thread.handle().enter();
-            links::open_signing(&cfg, links.len(), record_dir.as_deref())?
-        };
+        let signing = links::open_signing(&cfg, links.len(), record_dir.as_deref())?;
         let record = record_dir
             .filter(|_| cfg.record.enabled)
             .and_then(|dir| start_record(&cfg, &dir));
@@ -367,7 +361,6 @@ impl Bridge {
         let known_autopilot = KnownAutopilot::default();
         known_autopilot.set(core.autopilot());
         {
-            let _on_link_thread = link_thread.handle().enter();
             for (link_id, (link, address)) in links.into_iter().zip(addresses).enumerate() {
                 writers.push(LinkWriter::spawn(link.clone(), link_id, signing.clone()));
                 let reader = links::spawn_reader(
@@ -383,6 +376,10 @@ impl Bridge {
                 admissions.push(reader.admission);
             }
         }
+        if realtime {
+            // From here on: the set-up's own work is not the loop's.
+            tasks.push(tokio::spawn(governor::govern(LOOP_PRIORITY)));
+        }
         let (event_tx, bus_events) = mpsc::unbounded_channel();
         for (i, bus) in buses.handles.iter().enumerate() {
             tasks.push(forward_bus_events(
@@ -396,7 +393,6 @@ impl Bridge {
         let (edits, edited) = spawn_mapping_writer(mapping);
         Ok(Bridge {
             cfg,
-            link_thread,
             known_autopilot,
             core,
             buses,
@@ -723,7 +719,7 @@ impl Bridge {
             outputs_received_hz: self.core.received_rates_hz(),
             buses: statuses,
             texts: self.texts.iter().cloned().collect(),
-            // Held by the links' thread this instant: the counts of the last view stand.
+            // Held by a reader or writer this instant: the counts of the last view stand.
             signing_drops: match self.signing.as_ref().map(SharedSigning::try_lock) {
                 None => Vec::new(),
                 Some(Some(signing)) => signing.drops(),
@@ -763,7 +759,6 @@ impl Bridge {
             tracing::debug!("{unsent} MAVLink messages left unsent at the stop");
         }
         drop(self.writers);
-        drop(self.link_thread);
         if let Some(r) = self.record {
             let path = r.path();
             let stats = r.finish();
