@@ -100,18 +100,29 @@ pub(super) fn beside_stall(stalls: &[(Instant, Instant)], from: Instant, to: Ins
     stalls.iter().any(|(due, woke)| *due <= to && *woke >= from)
 }
 
-/// `n` processes that keep a CPU busy, ended when dropped.
+/// `n` processes that keep a CPU busy, ended when dropped. Each in a session of its own, as
+/// the programs beside a companion computer's bridge are (a camera's, a logger's, a shell's):
+/// with the kernel's autogroups (`/proc/sys/kernel/sched_autogroup_enabled`) the scheduler
+/// shares a CPU between sessions first, and hogs started in the bench's own session competed
+/// with the bridge as its equals, a gentler load than the same loops started from a shell.
 pub(super) struct Hogs(Vec<Child>);
 
 impl Hogs {
     pub(super) fn start(n: usize) -> Hogs {
+        use std::os::unix::process::CommandExt;
         Hogs(
             (0..n)
                 .map(|_| {
-                    Command::new("sh")
-                        .args(["-c", "while :; do :; done"])
-                        .spawn()
-                        .expect("a CPU hog")
+                    let mut hog = Command::new("sh");
+                    hog.args(["-c", "while :; do :; done"]);
+                    // SAFETY: setsid is async-signal-safe and touches only the child.
+                    unsafe {
+                        hog.pre_exec(|| {
+                            libc::setsid();
+                            Ok(())
+                        });
+                    }
+                    hog.spawn().expect("a CPU hog")
                 })
                 .collect(),
         )
