@@ -131,12 +131,17 @@ fn long_packets(events: &Receiver<BusEvent>) -> Vec<(Instant, Vec<(u8, i16)>)> {
         .collect()
 }
 
+/// A long packet follows an output the autopilot sent at most this long before it: four
+/// output periods at Plane's 40 Hz. The bridge's own part is under 2 ms (the e2e bench); the
+/// rest is the SITL's and the tap's scheduling on a loaded CI machine. A bridge 400 ms late
+/// (which the failsafe timeout would still allow) fails.
+const LAG_BOUND: Duration = Duration::from_millis(100);
+
 /// Check that every long packet's goals are the mapping of one SERVO_OUTPUT_RAW the autopilot
-/// sent before it (to ±1 count), no older than the mapping's failsafe timeout (an output the
-/// bridge must no longer obey), and never an output older than one an earlier packet already
-/// followed (the latest is kept); and that each servo in `moving` took at least `distinct`
-/// different goals. How far each packet is behind the newest output depends on the machine's
-/// load and is printed, not judged. Returns how many packets were checked.
+/// sent at most [`LAG_BOUND`] before it (to ±1 count), and never an output older than one an
+/// earlier packet already followed (the latest is kept); and that each servo in `moving` took
+/// at least `distinct` different goals. How far each packet is behind the newest output is
+/// printed. Returns how many packets were checked.
 fn goals_follow_outputs(
     cfg: &Config,
     packets: &[(Instant, Vec<(u8, i16)>)],
@@ -144,7 +149,6 @@ fn goals_follow_outputs(
     moving: &[(&str, usize)],
 ) -> usize {
     let servo = |id: u8| cfg.servos.iter().find(|s| s.id.get() == id).unwrap();
-    let stale = Duration::from_millis(cfg.mavlink.failsafe_timeout_ms.into());
     let mut unexplained = Vec::new();
     let mut went_back = Vec::new();
     let mut lags = Vec::new();
@@ -166,7 +170,7 @@ fn goals_follow_outputs(
         let newest = outputs[before - 1].at;
         match (0..before)
             .rev()
-            .take_while(|&k| *at - outputs[k].at <= stale)
+            .take_while(|&k| *at - outputs[k].at <= LAG_BOUND)
             .find(|&k| explains(&outputs[k]))
         {
             Some(k) if k < followed => went_back.push((goals.clone(), k, followed)),
@@ -184,8 +188,8 @@ fn goals_follow_outputs(
     );
     assert!(
         unexplained.is_empty(),
-        "{} of {checked} long packets match no output of the {stale:?} before them; the first \
-         (goals, the newest output): {:?}",
+        "{} of {checked} long packets match no output of the {LAG_BOUND:?} before them; the \
+         first (goals, the newest output): {:?}",
         unexplained.len(),
         &unexplained[..unexplained.len().min(3)]
     );
@@ -524,19 +528,20 @@ async fn arduplane_set_up_as_the_page_says() {
         );
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    tokio::time::sleep(SECS(3)).await;
-    let advice = log_lines_with(&log, "SCHED_LOOP_RATE");
-    assert_eq!(advice.len(), 1, "one line, not {advice:?}");
-    assert!(
-        advice[0].contains("denied SERVO_OUTPUT_RAW at 50 Hz"),
-        "{advice:?}"
-    );
+    // Once: the stream running at the lower rate the autopilot took means no denial is left
+    // to come, and so no second line.
     let since = Instant::now();
     tokio::time::sleep(SECS(2)).await;
     let tapped = tapped_rate(&tap, since, SECS(2));
     assert!(
         (36.0..=44.0).contains(&tapped),
         "after the denial: {tapped:.1} Hz"
+    );
+    let advice = log_lines_with(&log, "SCHED_LOOP_RATE");
+    assert_eq!(advice.len(), 1, "one line, not {advice:?}");
+    assert!(
+        advice[0].contains("denied SERVO_OUTPUT_RAW at 50 Hz"),
+        "{advice:?}"
     );
     chain.stop().await;
 
