@@ -166,8 +166,8 @@ fn assert_read_at(
     }
 }
 
-/// A step waits at most for port 1's message of its tick (and the slack after it).
-const STEP_WAIT: Duration = Duration::from_micros(200);
+/// A step waits at most for port 1's message of its tick (and the slack after it: 250 µs).
+const STEP_WAIT: Duration = Duration::from_micros(400);
 
 /// A bus of four servos online, and one second of a sweep on both ports.
 fn warmed_up() -> (Rig, Vec<Msg>) {
