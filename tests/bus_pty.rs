@@ -256,14 +256,19 @@ async fn the_port_is_left_reading_byte_by_byte_after_shutdown() {
 /// Every servo has a return delay of 3 ms (the remedy for an adapter slow to release the line);
 /// servo 3 answers 1 ms later than that, within its allowance, and every 4th reply of servo 2
 /// starts 5.3 ms late: after the bridge gave up on it and wrote servo 3's request, so that it
-/// lies in the tty before servo 3's reply. The late reply is never taken for servo 3's, and
-/// servo 3's reply is never written over. (Servo 2's own late replies may meet a packet
-/// written after its allowance ended: that is what an allowance means.) A talk-over within
-/// 20 ms of the pseudo-terminal's lateness is the transport's, not the bridge's: the
-/// simulator handed bytes late, or read a packet less than the return delay after a read
-/// request (every short packet here is one) had ended, which a bridge that waits for replies
-/// never writes, so the kernel held the bytes back (its pty buffer work runs as a normal
-/// thread). Such reads must stay rare: a bridge that did not wait would make them all.
+/// lies in the tty before servo 3's reply. The late reply is never taken for the awaited one:
+/// no reply is written over by a packet that follows, within 3 ms, the end of another servo's
+/// reply that came while it was awaited (the bridge that took servo 2's late reply for servo
+/// 3's wrote its next packet there, 16–19 times in 250 goals). (Servo 2's own late replies
+/// may meet a packet written after its allowance ended: that is what an allowance means; and
+/// beside busy programs the kernel's pty worker, a normal thread, may pass bytes on so late
+/// that a reply on time in the simulator's clock is past the bridge's allowance: such a
+/// talk-over is counted and printed, not judged. `src/bus/tests/late_replies.rs` judges the
+/// bus master's timing itself, in virtual time.) A talk-over within 20 ms of the
+/// pseudo-terminal's visible lateness is the transport's too: the simulator handed bytes late,
+/// or read a packet less than the return delay after a read request (every short packet here
+/// is one) had ended, which a bridge that waits for replies never writes. Such reads must stay
+/// rare: a bridge that did not wait would make them all.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_servo_answering_late_never_gets_the_next_servos_reply_talked_over() {
     const LATE: u8 = 2;
@@ -314,14 +319,40 @@ async fn a_servo_answering_late_never_gets_the_next_servos_reply_talked_over() {
         .collect();
     let transport_late: Vec<std::time::Instant> =
         handed_late.iter().chain(&read_bunched).copied().collect();
-    let (mut late_over, mut excused, mut over) = (0, 0, Vec::new());
+    let replies: Vec<&lj9da_sim::ReplyEvent> = events
+        .iter()
+        .filter_map(|e| match e {
+            SimEvent::Reply(r) => Some(r),
+            _ => None,
+        })
+        .collect();
+    // Whether servo `id`'s reply met, at `at`, a packet written within 3 ms of the end of
+    // another servo's reply that came after `id`'s request ended: the bridge took it for
+    // `id`'s.
+    let after_anothers_reply = |id: u8, at: std::time::Instant| {
+        let Some(request) = packets.iter().rev().find(|p| {
+            p.completed_at <= at && matches!(&p.packet, HostPacket::Short(s) if s.id == id)
+        }) else {
+            return false;
+        };
+        replies.iter().any(|r| {
+            r.id != id
+                && r.first_byte_at >= request.completed_at
+                && r.last_byte_at <= at
+                && at.saturating_duration_since(r.last_byte_at) <= Duration::from_millis(3)
+        })
+    };
+    let (mut late_over, mut unjudged, mut excused, mut over) = (0, 0, 0, Vec::new());
     let mut story = String::new();
-    for event in &events {
+    for (k, event) in events.iter().enumerate() {
         let SimEvent::Collision { at, id } = event else {
             continue;
         };
         if *id == LATE {
             late_over += 1;
+        } else if !after_anothers_reply(*id, *at) {
+            unjudged += 1;
+            eprintln!("{}", line_before(&events[..k], *at, *id));
         } else if transport_late
             .iter()
             .any(|h| *h <= *at + Duration::from_millis(1) && *at <= *h + Duration::from_millis(20))
@@ -329,13 +360,14 @@ async fn a_servo_answering_late_never_gets_the_next_servos_reply_talked_over() {
             excused += 1;
         } else {
             over.push(*id);
-            story += &line_before(&events, *at, *id);
+            story += &line_before(&events[..k], *at, *id);
         }
     }
     println!(
         "servo {LATE}: {} replies given up on, {late_over} of its late replies met a packet; \
-         others' replies talked over: {over:?}, and {excused} beside the transport's lateness \
-         (the simulator handed bytes late {} times, read a packet bunched {} times in {})",
+         others' replies talked over after another's reply: {over:?}; {unjudged} met otherwise \
+         (printed above), {excused} beside the transport's lateness (the simulator handed bytes \
+         late {} times, read a packet bunched {} times in {})",
         timeouts(LATE),
         handed_late.len(),
         read_bunched.len(),
@@ -356,33 +388,30 @@ async fn a_servo_answering_late_never_gets_the_next_servos_reply_talked_over() {
     bus.shutdown(ShutdownForce::AsIs).await;
 }
 
-/// What the simulated line carried in the 15 ms before the collision at `at` with servo `id`'s
-/// reply, one line per packet or reply, times in µs before the collision.
+/// The last dozen packets and replies on the simulated line before the collision at `at`
+/// with servo `id`'s reply (`events`: those before it), times in µs before the collision.
 fn line_before(events: &[SimEvent], at: std::time::Instant, id: u8) -> String {
     let before = |t: std::time::Instant| at.saturating_duration_since(t).as_micros();
-    let mut lines = format!("servo {id}'s reply talked over:\n");
-    let within = |from: std::time::Instant, to: std::time::Instant| {
-        to + Duration::from_millis(15) >= at && from <= at
-    };
-    for event in events {
-        let line = match event {
-            SimEvent::Packet(p) if within(p.first_byte_at, p.completed_at) => format!(
+    let lines: Vec<String> = events
+        .iter()
+        .filter_map(|event| match event {
+            SimEvent::Packet(p) => Some(format!(
                 "  host {:?} from -{} to -{} µs{}\n",
                 p.packet,
                 before(p.first_byte_at),
                 before(p.completed_at),
                 if p.collided { " COLLIDED" } else { "" }
-            ),
-            SimEvent::Reply(r) if within(r.first_byte_at, r.last_byte_at) => format!(
+            )),
+            SimEvent::Reply(r) => Some(format!(
                 "  servo {} replies {} bytes from -{} to -{} µs\n",
                 r.id,
                 r.bytes.len(),
                 before(r.first_byte_at),
                 before(r.last_byte_at)
-            ),
-            _ => continue,
-        };
-        lines += &line;
-    }
-    lines
+            )),
+            _ => None,
+        })
+        .collect();
+    let recent = &lines[lines.len().saturating_sub(12)..];
+    format!("servo {id}'s reply talked over:\n{}", recent.concat())
 }
