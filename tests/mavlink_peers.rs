@@ -463,7 +463,29 @@ async fn a_second_system_on_the_autopilots_port_takes_none_of_its_messages() {
             .any(|(_, m, _)| matches!(m, MavMessage::HEARTBEAT(_))),
         "the ground station heard no HEARTBEAT of the bridge's"
     );
+    assert!(sockets_on(port) >= 2, "a socket of its own for each peer");
     chain.stop().await;
+    // The runtime outlives the bridge here, as in `sitl`: the peers' sockets close with it.
+    assert_eq!(
+        sockets_on(port),
+        0,
+        "sockets left on the port after the stop"
+    );
+}
+
+/// The UDP sockets bound to local `port`, as /proc/net/udp and udp6 list them.
+fn sockets_on(port: u16) -> usize {
+    let local = format!(":{port:04X} ");
+    ["/proc/net/udp", "/proc/net/udp6"]
+        .iter()
+        .filter_map(|f| std::fs::read_to_string(f).ok())
+        .flat_map(|t| t.lines().skip(1).map(str::to_string).collect::<Vec<_>>())
+        .filter(|l| {
+            l.split_whitespace()
+                .nth(1)
+                .is_some_and(|a| format!("{a} ").ends_with(&local))
+        })
+        .count()
 }
 
 /// A chain whose parameters are saved into a mapping file of its own (`name` in its path),

@@ -251,6 +251,13 @@ impl Link {
         }
     }
 
+    /// Stop the tasks that read a `udpin` link's peers' own sockets (nothing on the others).
+    pub fn close_peers(&self) {
+        if let Link::UdpIn(udp) = self {
+            udp.close_peers();
+        }
+    }
+
     /// Datagrams the kernel dropped before the bridge read them: counted on `udpin` links
     /// (0 on the others, which cannot tell).
     pub fn lost(&self) -> u64 {

@@ -303,8 +303,8 @@ pub const LOOP_PRIORITY: i32 = crate::bus::driver::REALTIME_PRIORITY - 1;
 /// the autopilot's datagram), takes 1–2 % of a core and sleeps between messages; a flood makes
 /// it a normal thread while it lasts ([`governor`]). Threads it starts afterwards run as normal
 /// ones. Refused without the grant the bus threads need too (their warning says which); then
-/// only said at debug level.
-/// `true`: granted (the thread then keeps within [`governor::BUDGET`]).
+/// only said at debug level. Returns whether it was granted (the thread then keeps within
+/// [`governor::BUDGET`]).
 fn request_realtime_loop() -> bool {
     match lj9da_realtime::request_fifo(LOOP_PRIORITY) {
         Ok(()) => {
@@ -744,6 +744,11 @@ impl Bridge {
         }
         for task in self.tasks {
             task.abort();
+        }
+        // The peers' readers live on the loop's runtime, which may outlive the bridge (`sitl`,
+        // the tests): their sockets close now.
+        for link in &self.links {
+            link.close_peers();
         }
         for admission in &self.admissions {
             let summary = admission

@@ -341,13 +341,21 @@ impl UdpIn {
     }
 }
 
-impl Drop for UdpIn {
-    fn drop(&mut self) {
+impl UdpIn {
+    /// Stop reading the peers' own sockets, and close them: their tasks hold the link, so
+    /// that dropping it does not end them. Said by the bridge as it stops.
+    pub fn close_peers(&self) {
         for own in self.own().drain(..) {
             if let Some(task) = own.task {
                 task.abort();
             }
         }
+    }
+}
+
+impl Drop for UdpIn {
+    fn drop(&mut self) {
+        self.close_peers();
     }
 }
 
