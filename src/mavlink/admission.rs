@@ -60,10 +60,10 @@ pub const TAKEN_PER_SECOND: f64 = 1.0;
 /// As many at once.
 pub const TAKEN_BURST: f64 = 4.0;
 /// Flooders remembered at most (the oldest is forgotten first: it is a newcomer again).
-const FLOODERS: usize = 64;
+pub const FLOODERS: usize = 64;
 /// PARAM_SETs held at most (one per parameter and target: the bridge has far fewer
 /// parameters); beyond, the oldest held is dropped.
-const HELD: usize = 256;
+pub const HELD: usize = 256;
 
 /// Who sent a message, for its budget.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
