@@ -246,9 +246,22 @@ fn default_telemetry_of_four_moving_servos_fits_a_tenth_of_a_57600_baud_radio() 
         voltage_v: Some(11.0 + 0.01 * (ms % 7) as f32),
         ..online(0.01 * (ms % 1000) as f32)
     });
-    let per_s = wire_bytes(&out) / 60;
-    println!("default telemetry, {servos} servos, every value changing: {per_s} bytes/s");
+    // The servos' states (for the autopilot's script, `servo_state = false` without one) are
+    // counted apart: 30 bytes per servo per second.
+    let (states, rest): (Vec<MavMessage>, Vec<MavMessage>) = out
+        .into_iter()
+        .partition(|m| matches!(m, MavMessage::NAMED_VALUE_INT(_)));
+    let per_s = wire_bytes(&rest) / 60;
+    let states_per_s = wire_bytes(&states) / 60;
+    println!(
+        "default telemetry, {servos} servos, every value changing: {per_s} bytes/s, and the \
+         servo states {states_per_s} bytes/s"
+    );
     assert!(per_s <= 576, "{per_s} bytes/s");
+    assert!(
+        states_per_s <= 30 * servos,
+        "servo states: {states_per_s} bytes/s for {servos} servos"
+    );
 }
 
 fn c_servos(mapping: &str) -> usize {
@@ -299,4 +312,115 @@ fn events_become_one_statustext_each() {
             ),
         ]
     );
+}
+
+/// The servo states sent (NAMED_VALUE_INT `LJ9_<label>`) up to `to_ms`, in ms from `t0`; the
+/// core is called every 5 ms with `reports(ms)`, and given an output message every 20 ms
+/// while `outputs_until_ms` has not passed.
+fn states(
+    c: &mut BridgeCore,
+    t0: Instant,
+    to_ms: u64,
+    outputs_until_ms: u64,
+    reports: impl Fn(u64) -> Vec<ServoReport>,
+) -> Vec<(u64, String, i32)> {
+    let mut out = Vec::new();
+    for ms in (0..to_ms).step_by(5) {
+        let now = t0 + Duration::from_millis(ms);
+        if ms % 20 == 0 && ms < outputs_until_ms {
+            c.handle_message(
+                0,
+                &header(AP),
+                &mavlink_support::outputs(0, &[(1, 1520), (9, 1520)]),
+                now,
+            );
+            mavlink_support::commands(c);
+        }
+        c.handle_timeout(now, &reports(ms));
+        for o in messages(c) {
+            if let MavMessage::NAMED_VALUE_INT(v) = o.message {
+                out.push((ms, v.name.to_str().unwrap().to_string(), v.value));
+            }
+        }
+    }
+    out
+}
+
+fn state_of(sent: &[(u64, String, i32)], name: &str) -> Vec<(u64, i32)> {
+    sent.iter()
+        .filter(|(_, n, _)| n == name)
+        .map(|(ms, _, v)| (*ms, *v))
+        .collect()
+}
+
+#[test]
+fn each_servo_state_goes_out_every_second_and_a_change_within_100_ms() {
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    // The outputs keep coming (no failsafe); the gear's replies stop at 2.3 s.
+    let lost = ServoReport {
+        state: Some(ServoState::Offline),
+        ..Default::default()
+    };
+    let sent = states(&mut c, t0, 4000, 4000, |ms| {
+        let gear = if ms >= 2300 { lost } else { online(0.0) };
+        vec![online(0.0), online(0.0), gear]
+    });
+    assert_eq!(
+        state_of(&sent, "LJ9_ail_l"),
+        vec![(0, 0), (1000, 0), (2000, 0), (3000, 0)],
+        "all well, once a second: {sent:?}"
+    );
+    let gear = state_of(&sent, "LJ9_gear");
+    let first_lost = gear
+        .iter()
+        .find(|(_, v)| *v != 0)
+        .expect("the lost servo said");
+    assert!(
+        (2300..=2400).contains(&first_lost.0),
+        "the change went out at {} ms, not within 100 ms of 2300: {gear:?}",
+        first_lost.0
+    );
+    assert_eq!(first_lost.1, 1, "offline: {gear:?}");
+}
+
+#[test]
+fn a_servo_state_says_each_trouble_in_its_own_bit() {
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    let hot_and_stalled = ServoReport {
+        temperature_alarm: true,
+        stalled: true,
+        ..online(0.0)
+    };
+    let starting = ServoReport::default();
+    let stale = ServoReport {
+        state: Some(ServoState::Stale),
+        ..online(0.0)
+    };
+    // The outputs stop at 1 s: failsafe after the mapping's 500 ms.
+    let sent = states(&mut c, t0, 2600, 1000, |_| {
+        vec![hot_and_stalled, starting, stale]
+    });
+    assert_eq!(state_of(&sent, "LJ9_ail_l")[0], (0, 4 | 8), "{sent:?}");
+    assert_eq!(state_of(&sent, "LJ9_ail_r")[0], (0, 2), "{sent:?}");
+    assert_eq!(state_of(&sent, "LJ9_gear")[0], (0, 32), "{sent:?}");
+    let failsafe = state_of(&sent, "LJ9_gear")
+        .into_iter()
+        .find(|(_, v)| v & 16 != 0)
+        .expect("failsafe said");
+    assert!(
+        (1500..=1700).contains(&failsafe.0),
+        "failsafe at {failsafe:?}: {sent:?}"
+    );
+}
+
+#[test]
+fn servo_states_can_be_turned_off() {
+    let t0 = Instant::now();
+    let mapping = MAPPING.replace("[telemetry]", "[telemetry]\nservo_state = false");
+    let mut c = BridgeCore::new(Config::parse(&mapping, "t.toml").unwrap(), t0);
+    c.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
+    let sent = states(&mut c, t0, 3000, 3000, |_| vec![online(0.0); 3]);
+    assert!(sent.is_empty(), "{sent:?}");
 }

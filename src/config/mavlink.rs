@@ -198,6 +198,9 @@ pub struct TelemetryConfig {
     pub esc_index_base: u8,
     /// STATUSTEXT for alarms, lost servos and failsafe.
     pub statustext: bool,
+    /// Each servo's state as NAMED_VALUE_INT `LJ9_<label>` (1 Hz, and on a change), for the
+    /// autopilot's script (`packaging/ardupilot/lj9da.lua`).
+    pub servo_state: bool,
 }
 
 impl Default for TelemetryConfig {
@@ -211,6 +214,7 @@ impl Default for TelemetryConfig {
             esc_status_hz: DEFAULT_ESC_STATUS_HZ,
             esc_index_base: DEFAULT_ESC_INDEX_BASE,
             statustext: true,
+            servo_state: true,
         }
     }
 }
@@ -586,6 +590,7 @@ impl TelemetryConfig {
             esc_status_hz: rate_or(&raw.esc_status_hz, "esc_status_hz", default.esc_status_hz)?,
             esc_index_base,
             statustext: raw.statustext.unwrap_or(default.statustext),
+            servo_state: raw.servo_state.unwrap_or(default.servo_state),
         })
     }
 }

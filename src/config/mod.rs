@@ -22,7 +22,7 @@
 //! | | `named_values` | `["pos", "cur", "tmp", "vlt"]` | which quantities go out as NAMED_VALUE_FLOAT |
 //! | | `esc_info_hz`, `esc_status_hz` | 1, 1 | the rates of ESC_INFO and ESC_STATUS |
 //! | | `esc_index_base` | 16 | the ESC index of the first servo (clear of motor ESCs) |
-//! | | `named_value_float`, `esc`, `statustext` | true | which carriers are sent |
+//! | | `named_value_float`, `esc`, `statustext`, `servo_state` | true | which carriers are sent |
 //! | `[bridge]` | `on_exit` | `"hold"` | `"hold"`, `"off"` or `"brake"` when the bridge stops |
 //! | `[[bus]]` | `name`, `port` | (required) | the bus's name and serial port |
 //! | | `baud` | 115200 | one of the servo's rates, 9600 … 460800 |

@@ -48,6 +48,7 @@ pub(crate) struct RawTelemetry {
     pub esc_status_hz: Option<Spanned<f64>>,
     pub esc_index_base: Option<Spanned<i64>>,
     pub statustext: Option<bool>,
+    pub servo_state: Option<bool>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -49,6 +49,7 @@ pub(super) fn resolved_table(config: &Config) -> String {
         (t.named_value_float, named.as_str()),
         (t.esc, esc.as_str()),
         (t.statustext, "STATUSTEXT"),
+        (t.servo_state, "servo states (NAMED_VALUE_INT)"),
     ]
     .into_iter()
     .filter_map(|(on, name)| on.then_some(name))

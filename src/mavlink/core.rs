@@ -612,7 +612,9 @@ impl BridgeCore {
                 sender: None,
             });
         }
-        for message in self.telemetry.due(&self.cfg, reports, now) {
+        let servos = &self.servos;
+        let failsafe = |i: usize| servos.get(i).is_some_and(|s| s.failsafe);
+        for message in self.telemetry.due(&self.cfg, reports, failsafe, now) {
             self.outgoing.push_back(Outgoing {
                 message,
                 link: None,

@@ -44,6 +44,7 @@ pub fn is_telemetry(message: &MavMessage) -> bool {
         message,
         MavMessage::HEARTBEAT(_)
             | MavMessage::NAMED_VALUE_FLOAT(_)
+            | MavMessage::NAMED_VALUE_INT(_)
             | MavMessage::ESC_INFO(_)
             | MavMessage::ESC_STATUS(_)
     )

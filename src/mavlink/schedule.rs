@@ -3,7 +3,9 @@
 //! when it has changed since it was last sent, or after [`NAMED_VALUE_REFRESH_S`] without a
 //! send (for a ground station that connects late). A servo going offline or raising a failure
 //! flag sends ESC_INFO at the next look (the NAMED_VALUE_FLOAT rate) instead of waiting for its
-//! own slower rate. Everything the bridge sends is forwarded by
+//! own slower rate. Each servo's state (NAMED_VALUE_INT `LJ9_<label>`, for a script on the
+//! autopilot) goes out every [`STATE_REFRESH`] and, when it changes, within [`STATE_LOOK`].
+//! Everything the bridge sends is forwarded by
 //! the autopilot to every link, a 57 600-baud telemetry radio included.
 
 use super::health::ServoReport;
@@ -12,6 +14,12 @@ use crate::config::mavlink::NAMED_VALUE_REFRESH_S;
 use crate::config::{Config, Quantity};
 use mavlink::dialects::common::MavMessage;
 use std::time::{Duration, Instant};
+
+/// How often the servos' states are compared with those last sent.
+pub const STATE_LOOK: Duration = Duration::from_millis(100);
+/// Each servo's state goes out at least this often (a script counts a state not heard for its
+/// timeout, 3 s by default, as the servo lost).
+pub const STATE_REFRESH: Duration = Duration::from_secs(1);
 
 /// See the module docs.
 #[derive(Debug)]
@@ -25,6 +33,10 @@ pub struct TelemetrySchedule {
     sent: Vec<[Option<(f32, Instant)>; 4]>,
     /// Per block of four: the online bits and failure flags of the ESC_INFO last sent.
     esc_state_sent: Vec<(u8, [u16; 4])>,
+    next_state_look: Instant,
+    next_state_refresh: Instant,
+    /// Per servo: the state bits last sent.
+    state_sent: Vec<Option<i32>>,
 }
 
 /// What ESC_INFO says of the servos' state (not their measurements), per block.
@@ -61,6 +73,9 @@ impl TelemetrySchedule {
             esc_counter: 0,
             sent: vec![[None; 4]; servos],
             esc_state_sent: Vec::new(),
+            next_state_look: now,
+            next_state_refresh: now,
+            state_sent: vec![None; servos],
         }
     }
 
@@ -69,10 +84,18 @@ impl TelemetrySchedule {
         self.next_named
             .min(self.next_esc_info)
             .min(self.next_esc_status)
+            .min(self.next_state_look)
     }
 
-    /// The messages due at `now` for the servos' `reports` (mapping order).
-    pub fn due(&mut self, cfg: &Config, reports: &[ServoReport], now: Instant) -> Vec<MavMessage> {
+    /// The messages due at `now` for the servos' `reports` (mapping order); `failsafe(i)`:
+    /// servo `i` holds its failsafe position.
+    pub fn due(
+        &mut self,
+        cfg: &Config,
+        reports: &[ServoReport],
+        failsafe: impl Fn(usize) -> bool,
+        now: Instant,
+    ) -> Vec<MavMessage> {
         let t = &cfg.telemetry;
         let since_boot = now.duration_since(self.started);
         let us = since_boot.as_micros().min(u128::from(u64::MAX)) as u64;
@@ -106,7 +129,38 @@ impl TelemetrySchedule {
                 out.extend(telemetry::esc_status_blocks(reports, t.esc_index_base, us));
             }
         }
+        if now >= self.next_state_look {
+            self.next_state_look = now + STATE_LOOK;
+            let all = now >= self.next_state_refresh;
+            if all {
+                self.next_state_refresh = now + STATE_REFRESH;
+            }
+            if t.servo_state {
+                let ms = since_boot.as_millis().min(u128::from(u32::MAX)) as u32;
+                self.states(cfg, reports, &failsafe, all, ms, &mut out);
+            }
+        }
         out
+    }
+
+    /// Each servo's state whose bits changed since last sent, or every one when `all`.
+    fn states(
+        &mut self,
+        cfg: &Config,
+        reports: &[ServoReport],
+        failsafe: impl Fn(usize) -> bool,
+        all: bool,
+        ms: u32,
+        out: &mut Vec<MavMessage>,
+    ) {
+        let servos = cfg.servos.iter().zip(reports).zip(&mut self.state_sent);
+        for (i, ((servo, report), sent)) in servos.enumerate() {
+            let bits = telemetry::state_bits(report, failsafe(i));
+            if all || *sent != Some(bits) {
+                *sent = Some(bits);
+                out.push(telemetry::servo_state(&servo.label, bits, ms));
+            }
+        }
     }
 
     fn named_values(

@@ -6,7 +6,7 @@ use crate::config::Quantity;
 use mavlink::dialects::common::{
     ESC_INFO_DATA, ESC_STATUS_DATA, EscConnectionType, EscFailureFlags, HEARTBEAT_DATA,
     MavAutopilot, MavMessage, MavModeFlag, MavSeverity, MavState, MavType, NAMED_VALUE_FLOAT_DATA,
-    STATUSTEXT_DATA,
+    NAMED_VALUE_INT_DATA, STATUSTEXT_DATA,
 };
 
 /// NAMED_VALUE_FLOAT names have at most 10 characters.
@@ -190,6 +190,59 @@ pub fn failure_flags(r: &ServoReport) -> EscFailureFlags {
         f |= EscFailureFlags::ESC_FAILURE_GENERIC;
     }
     f
+}
+
+/// A servo's state as the bits of its NAMED_VALUE_INT `LJ9_<label>` (0: all well), for an
+/// autopilot's script to refuse arming or act on (`packaging/ardupilot/lj9da.lua`). The bits
+/// are a published interface (`docs/autopilot.md`): never renumbered, only added to.
+pub mod state_bit {
+    /// Not answering, or answering but unusable (wrong model, force off by its temperature
+    /// limit).
+    pub const OFFLINE: i32 = 1;
+    /// Has not answered yet since the bridge started.
+    pub const STARTING: i32 = 2;
+    /// Temperature alarm or error.
+    pub const OVER_TEMPERATURE: i32 = 4;
+    /// Stalled: far from its goal while pushing.
+    pub const STALLED: i32 = 8;
+    /// It holds its failsafe position: its output stopped coming from the autopilot.
+    pub const FAILSAFE: i32 = 16;
+    /// Answering, but its latest replies are missing.
+    pub const STALE: i32 = 32;
+}
+
+/// The prefix of a servo's state name: `LJ9_` and a label of at most 6 characters fit
+/// NAMED_VALUE_INT's 10.
+pub const STATE_PREFIX: &str = "LJ9_";
+
+/// The bits of [`state_bit`] that hold for a servo (`failsafe`: it holds its failsafe position).
+pub fn state_bits(r: &ServoReport, failsafe: bool) -> i32 {
+    let mut bits = match r.state() {
+        ServoState::Online => 0,
+        ServoState::Starting => state_bit::STARTING,
+        ServoState::Stale => state_bit::STALE,
+        ServoState::Offline | ServoState::Fault => state_bit::OFFLINE,
+    };
+    if r.temperature_alarm || r.temperature_error {
+        bits |= state_bit::OVER_TEMPERATURE;
+    }
+    if r.stalled {
+        bits |= state_bit::STALLED;
+    }
+    if failsafe {
+        bits |= state_bit::FAILSAFE;
+    }
+    bits
+}
+
+/// One servo's state: NAMED_VALUE_INT `LJ9_<label>` with [`state_bits`].
+pub fn servo_state(label: &str, bits: i32, time_boot_ms: u32) -> MavMessage {
+    let name = format!("{STATE_PREFIX}{label}");
+    MavMessage::NAMED_VALUE_INT(NAMED_VALUE_INT_DATA {
+        time_boot_ms,
+        value: bits,
+        name: name.as_str().into(),
+    })
 }
 
 pub fn statustext(severity: MavSeverity, text: &str) -> MavMessage {
