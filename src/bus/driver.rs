@@ -680,9 +680,9 @@ impl Driver {
         let mut backoff = Duration::ZERO;
         loop {
             let opened = open_port(&self.path, baud, self.rs485.as_mut());
-            self.turn();
             match opened {
                 Ok((port, waiter)) => {
+                    self.turn();
                     backoff = Duration::ZERO;
                     tracing::info!(bus = %self.name, port = %self.path.display(), "serial port open at {baud}");
                     {
@@ -706,6 +706,10 @@ impl Driver {
                         format!("cannot open {}: {e}", self.path.display()),
                         Instant::now(),
                     );
+                    // Counted once the status says so: the first turn tells the service that
+                    // this port was tried, and what it says of the bus must be the outcome.
+                    self.publish(Publish::Now);
+                    self.turn();
                 }
             }
             self.publish(Publish::IfDue);
