@@ -90,11 +90,11 @@ impl Buses {
         let mut reports = Vec::with_capacity(self.servo_at.len());
         let mut views = Vec::with_capacity(self.servo_at.len());
         for (i, (bus, id)) in self.servo_at.iter().enumerate() {
-            let status = statuses
-                .get(*bus)
-                .and_then(|b| b.servos.iter().find(|s| s.id == *id));
+            let bus_status = statuses.get(*bus);
+            let port_open = bus_status.is_some_and(|b| b.port_open);
+            let status = bus_status.and_then(|b| b.servos.iter().find(|s| s.id == *id));
             let (report, goal_mm, health) = match status {
-                Some(s) => (report_of(s), s.goal.map(|g| g.mm()), s.health),
+                Some(s) => (report_of(s, port_open), s.goal.map(|g| g.mm()), s.health),
                 None => (ServoReport::default(), None, Health::Starting),
             };
             reports.push(report);
@@ -136,8 +136,11 @@ pub const FRESH_FOR: std::time::Duration = std::time::Duration::from_secs(1);
 /// reading is fresh (younger than [`FRESH_FOR`] when the status was taken), whatever the
 /// servo's health: a servo in temperature error (force off) is still read, and that is when
 /// the operator most needs to watch its temperature fall and see where the rod stopped.
-pub fn report_of(s: &crate::bus::ServoStatus) -> ServoReport {
+/// A servo on a bus whose port is closed (the adapter unplugged, a port that never opened)
+/// cannot be reached: it is offline, whatever its last health was.
+pub fn report_of(s: &crate::bus::ServoStatus, port_open: bool) -> ServoReport {
     let state = match s.health {
+        _ if !port_open => ServoState::Offline,
         Health::Starting => ServoState::Starting,
         Health::Online => ServoState::Online,
         Health::Stale => ServoState::Stale,

@@ -49,7 +49,7 @@ fn a_fresh_reading_goes_out_whatever_the_servos_health() {
         Health::WrongModel,
         Health::TemperatureError,
     ] {
-        let r = report_of(&status(health, fresh));
+        let r = report_of(&status(health, fresh), true);
         assert_eq!(
             telemetry_of(&r),
             [Some(1.5), Some(0.3), Some(86.0), Some(12.0)],
@@ -62,7 +62,7 @@ fn a_fresh_reading_goes_out_whatever_the_servos_health() {
 fn a_servo_in_temperature_error_reports_its_temperature_and_its_fault() {
     let mut s = status(Health::TemperatureError, Some(Duration::from_millis(15)));
     s.flags = ReplyFlags(ReplyFlags::TEMPERATURE_ERROR);
-    let r = report_of(&s);
+    let r = report_of(&s, true);
     assert_eq!(r.state, Some(ServoState::Fault));
     assert!(r.temperature_error);
     assert_eq!(r.temperature_c, Some(86.0));
@@ -71,12 +71,30 @@ fn a_servo_in_temperature_error_reports_its_temperature_and_its_fault() {
 #[test]
 fn a_reading_older_than_fresh_for_is_not_passed_on_as_present() {
     for health in [Health::Online, Health::Stale, Health::TemperatureError] {
-        let r = report_of(&status(health, Some(FRESH_FOR)));
+        let r = report_of(&status(health, Some(FRESH_FOR)), true);
         assert_eq!(telemetry_of(&r), [None; 4], "{health:?}");
     }
     let mut never_read = status(Health::Online, None);
     never_read.telemetry = None;
-    assert_eq!(telemetry_of(&report_of(&never_read)), [None; 4]);
+    assert_eq!(telemetry_of(&report_of(&never_read, true)), [None; 4]);
+}
+
+#[test]
+fn a_servo_behind_a_closed_port_is_offline_whatever_it_last_was() {
+    for health in [
+        Health::Starting,
+        Health::Online,
+        Health::Stale,
+        Health::Offline,
+    ] {
+        let r = report_of(&status(health, Some(Duration::from_millis(20))), false);
+        assert_eq!(r.state, Some(ServoState::Offline), "{health:?}");
+        assert_eq!(
+            crate::mavlink::telemetry::state_bits(&r, false),
+            crate::mavlink::telemetry::state_bit::OFFLINE,
+            "{health:?}: the applet's bit for a servo it must act on"
+        );
+    }
 }
 
 fn trim_set(value: i64) -> ParamSet {
