@@ -80,6 +80,7 @@ fn the_package_script_ships_the_files_these_tests_check() {
     for file in [
         "packaging/lj9da-bridge.service",
         "packaging/99-lj9da-bridge.rules",
+        "packaging/ardupilot/lj9da.lua",
         "cat packaging/conffile-head.toml mappings/ardupilot-plane.toml packaging/conffile-tail.toml",
     ] {
         assert!(script.contains(file), "build-debs does not use {file}");

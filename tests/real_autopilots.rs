@@ -14,7 +14,7 @@
 mod autopilots;
 mod common;
 
-use autopilots::{Autopilot, GroundStation, Tap, Tapped, block_after, fresh_dir};
+use autopilots::{Autopilot, GcsMessage, GroundStation, Tap, Tapped, block_after, fresh_dir};
 use common::{Chain, ChainOptions};
 use lj9da_bridge::config::Config;
 use lj9da_bridge::config::servo::ServoConfig;
@@ -855,4 +855,185 @@ async fn px4_quadrotor_with_the_pages_minimal_mapping() {
     drop(gcs);
     chain.stop().await;
     drop(px4);
+}
+
+/// The applet of `packaging/ardupilot/` as the page installs it.
+const APPLET: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/packaging/ardupilot/lj9da.lua");
+
+/// An arm command (not forced: the pre-arm checks, the applet's among them, run); its result
+/// and the autopilot's STATUSTEXTs that came with it.
+fn try_arming(gcs: &mut GroundStation) -> (u64, Vec<String>) {
+    let mark = gcs.mark();
+    let result = command(
+        gcs,
+        MAV_CMD_COMPONENT_ARM_DISARM,
+        [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    );
+    std::thread::sleep(Duration::from_millis(200));
+    let texts = gcs
+        .heard_after(mark)
+        .iter()
+        .filter(|m| m["msg"] == "STATUSTEXT" && autopilots::from(m, 1, 1))
+        .filter_map(|m| m["text"].as_str().map(str::to_string))
+        .collect();
+    (result, texts)
+}
+
+/// Arm commands once a second until one is refused with a text holding `reason` (returned);
+/// panics if the autopilot arms meanwhile or `timeout` passes.
+fn refused_for(gcs: &mut GroundStation, reason: &str, timeout: Duration) -> String {
+    let deadline = Instant::now() + timeout;
+    let mut last = Vec::new();
+    while Instant::now() < deadline {
+        let (result, texts) = try_arming(gcs);
+        assert_ne!(
+            result, 0,
+            "armed while waiting for \"{reason}\"; texts: {texts:?}"
+        );
+        if let Some(t) = texts.iter().find(|t| t.contains(reason)) {
+            return t.clone();
+        }
+        last = texts;
+        std::thread::sleep(Duration::from_millis(800));
+    }
+    panic!("arming never refused with \"{reason}\" in {timeout:?}; the last texts: {last:?}");
+}
+
+/// The autopilot's HEARTBEAT (its custom mode, whether armed) after `mark`.
+fn autopilot_mode_after(gcs: &GroundStation, mark: usize, what: &str, mode: u64) -> GcsMessage {
+    gcs.wait_for_after(mark, what, SECS(10), |m| {
+        m["msg"] == "HEARTBEAT" && autopilots::from(m, 1, 1) && m["custom_mode"] == mode
+    })
+}
+
+/// The autopilot's STATUSTEXT `text` after `mark` (within 10 s).
+fn applet_text_after(gcs: &GroundStation, mark: usize, text: &str) -> GcsMessage {
+    gcs.wait_for_after(mark, &format!("\"{text}\""), SECS(10), |m| {
+        m["msg"] == "STATUSTEXT" && autopilots::from(m, 1, 1) && m["text"] == text
+    })
+}
+
+/// How many of the autopilot's STATUSTEXTs after `mark` are `text`.
+fn texts_after(gcs: &GroundStation, mark: usize, text: &str) -> usize {
+    gcs.heard_after(mark)
+        .iter()
+        .filter(|m| m["msg"] == "STATUSTEXT" && autopilots::from(m, 1, 1) && m["text"] == text)
+        .count()
+}
+
+/// ArduPlane's mode numbers (`ArduPlane/mode.h`).
+const PLANE_MANUAL: u64 = 0;
+const PLANE_RTL: u64 = 11;
+const MAV_MODE_FLAG_SAFETY_ARMED: u64 = 128;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+#[ignore = "needs ArduPlane SITL and its fixed ports: run by .ci/autopilots"]
+async fn arduplane_applet_refuses_arming_for_a_lost_servo_and_acts_when_the_bridge_goes_silent() {
+    let (binary, defaults) = autopilots::arduplane().expect(
+        "no ArduPlane SITL: set LJ9DA_ARDUPLANE to an arduplane program (plane.parm beside it)",
+    );
+    let dir = fresh_dir("arduplane-applet");
+    std::fs::create_dir_all(dir.join("scripts")).unwrap();
+    std::fs::copy(APPLET, dir.join("scripts/lj9da.lua")).expect("the applet");
+    let parm = dir.join("bridge.parm");
+    std::fs::write(
+        &parm,
+        block_after(PAGE, "<!-- sitl: ArduPlane parameters -->")
+            + &block_after(PAGE, "<!-- sitl: the applet's parameters -->"),
+    )
+    .unwrap();
+    let defaults = format!("{},{}", defaults.display(), parm.display());
+    let tap = Tap::start(14560);
+    let ap = Autopilot::arduplane(&binary, &dir, &defaults, 14560);
+    tap.wait_for_autopilot(SECS(60), || ap.console());
+    let mut gcs = GroundStation::connect("tcp:127.0.0.1:5760");
+
+    // No bridge yet: arming is refused, and the reason says so.
+    let said = refused_for(&mut gcs, "LJ9DA: bridge silent 3 s", SECS(60));
+    assert!(said.starts_with("Arm: "), "{said}");
+
+    // The bridge up with the rudder (servo 4) unplugged: refused, naming the rudder.
+    let (chain, _cfg) = bridge_from_file(&dir.join("bridge.toml"), "").await;
+    assert!(chain.sims[0].handle().unplug(4));
+    tap.to_bridge(chain.autopilot_port);
+    refused_for(&mut gcs, "LJ9DA: rudder offline", SECS(30));
+
+    // Plugged back in: the applet lets the autopilot arm (once its own checks pass too).
+    assert!(chain.sims[0].handle().plug(4));
+    let deadline = Instant::now() + SECS(90);
+    loop {
+        let (result, texts) = try_arming(&mut gcs);
+        if result == 0 {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "not armed 90 s after the rudder came back: {texts:?}"
+        );
+        std::thread::sleep(Duration::from_millis(800));
+    }
+
+    // Armed in MANUAL, the action set to RTL; then the bridge goes silent.
+    let mark = gcs.mark();
+    gcs.send(
+        "PARAM_SET",
+        json!({"target_system": 1, "target_component": 1, "param_id": "LJ9_FS_MODE",
+               "param_value": PLANE_RTL as f32, "param_type": 9}),
+    );
+    gcs.wait_for_after(mark, "LJ9_FS_MODE set", SECS(10), |m| {
+        m["msg"] == "PARAM_VALUE" && m["param_id"] == "LJ9_FS_MODE" && m["param_value"] == 11.0
+    });
+    arduplane_manual(&mut gcs);
+    autopilot_mode_after(&gcs, gcs.mark(), "MANUAL", PLANE_MANUAL);
+
+    // A servo lost in flight: said at CRITICAL, the mode changed; back: said at INFO.
+    let mark = gcs.mark();
+    let unplugged = Instant::now();
+    assert!(chain.sims[0].handle().unplug(4));
+    let lost = applet_text_after(&gcs, mark, "LJ9DA: rudder offline");
+    let servo_noticed = unplugged.elapsed();
+    assert_eq!(lost["severity"], 2, "MAV_SEVERITY_CRITICAL: {lost}");
+    autopilot_mode_after(&gcs, mark, "RTL after the rudder was lost", PLANE_RTL);
+    // Offline after 3 missed replies or 300 ms of silence (the bus's defaults), its state out
+    // within 100 ms, the applet's look every 100 ms: about 0.5 s; 1.5 s allows the loaded
+    // machine's TCP path to the ground station.
+    assert!(
+        servo_noticed < Duration::from_millis(1500),
+        "the rudder's loss said after {servo_noticed:?}"
+    );
+    assert!(chain.sims[0].handle().plug(4));
+    let back = applet_text_after(&gcs, mark, "LJ9DA: rudder back");
+    assert_eq!(back["severity"], 6, "MAV_SEVERITY_INFO: {back}");
+    let said = texts_after(&gcs, mark, "LJ9DA: rudder offline");
+    assert_eq!(said, 1, "the rudder's loss said {said} times");
+
+    // MANUAL again; then the bridge goes silent.
+    arduplane_manual(&mut gcs);
+    let mark = gcs.mark();
+    autopilot_mode_after(&gcs, mark, "MANUAL", PLANE_MANUAL);
+    let silenced = Instant::now();
+    tap.silence_bridge();
+    let critical = applet_text_after(&gcs, mark, "LJ9DA: bridge silent 3 s");
+    let noticed = silenced.elapsed();
+    assert_eq!(critical["severity"], 2, "MAV_SEVERITY_CRITICAL: {critical}");
+    let rtl = autopilot_mode_after(&gcs, mark, "RTL after the bridge went silent", PLANE_RTL);
+    let armed = rtl["base_mode"].as_u64().unwrap() & MAV_MODE_FLAG_SAFETY_ARMED;
+    assert_ne!(armed, 0, "still armed in RTL: {rtl}");
+    // The applet's timeout is 3 s from the bridge's last HEARTBEAT (1 Hz), checked every
+    // 100 ms: said 2.0–3.1 s after the silence began, and up to 0.9 s more on its way to the
+    // ground station over the autopilot's TCP link on a loaded machine.
+    assert!(
+        (SECS(2)..SECS(4)).contains(&noticed),
+        "the silence noticed after {noticed:?}"
+    );
+    // Said once: the next mode HEARTBEATs come and the text does not again.
+    let after = gcs.mark();
+    autopilot_mode_after(&gcs, after, "RTL", PLANE_RTL);
+    autopilot_mode_after(&gcs, gcs.mark(), "RTL", PLANE_RTL);
+    let said = texts_after(&gcs, mark, "LJ9DA: bridge silent 3 s");
+    assert_eq!(said, 1, "the bridge's loss said {said} times");
+    eprintln!(
+        "the applet said the rudder lost after {servo_noticed:?}, the bridge after {noticed:?}"
+    );
+    chain.stop().await;
 }

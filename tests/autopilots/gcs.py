@@ -4,7 +4,7 @@ Usage: gcs.py ADDRESS            (e.g. tcp:127.0.0.1:5760, udpin:127.0.0.1:14550
 
 It sends a GCS HEARTBEAT once a second and prints, one JSON object a line on stdout, every
 message it hears from a component other than the autopilot's (the bridge's, through the
-autopilot), and the autopilot's COMMAND_ACK, PARAM_VALUE and STATUSTEXT:
+autopilot), and the autopilot's COMMAND_ACK, HEARTBEAT, PARAM_VALUE and STATUSTEXT:
     {"msg": "HEARTBEAT", "src": [1, 140], "t": 12.5, ...the message's fields...}
 It takes one JSON command a line on stdin:
     {"send": "COMMAND_LONG", "fields": {...}}     any message, by pymavlink's field names
@@ -65,7 +65,7 @@ def take_commands():
 threading.Thread(target=commands, daemon=True).start()
 emit({"msg": "READY", "src": [0, 0]})
 next_heartbeat = 0.0
-KEEP_FROM_AUTOPILOT = {"COMMAND_ACK", "PARAM_VALUE", "STATUSTEXT"}
+KEEP_FROM_AUTOPILOT = {"COMMAND_ACK", "HEARTBEAT", "PARAM_VALUE", "STATUSTEXT"}
 while True:
     now = time.monotonic()
     if now >= next_heartbeat:

@@ -214,6 +214,8 @@ pub struct Tapped {
 #[derive(Default)]
 struct TapState {
     bridge: Option<SocketAddr>,
+    /// The bridge's datagrams are dropped, not passed on: to the autopilot, a bridge killed.
+    bridge_silenced: bool,
     autopilot: Option<SocketAddr>,
     outputs: Vec<Tapped>,
     /// When the last datagram from the autopilot came.
@@ -264,6 +266,9 @@ impl Tap {
                 if Some(from) == state.bridge {
                     state.datagrams.1 += 1;
                     state.signed.1 += u64::from(signed(datagram));
+                    if state.bridge_silenced {
+                        continue;
+                    }
                     if let Some(to) = state.autopilot {
                         let _ = socket.send_to(datagram, to);
                     }
@@ -301,6 +306,12 @@ impl Tap {
     /// Pass the autopilot's datagrams to the bridge's `udpin` port from now on.
     pub fn to_bridge(&self, port: u16) {
         self.state.lock().unwrap().bridge = Some(SocketAddr::from(([127, 0, 0, 1], port)));
+    }
+
+    /// From now on the bridge's datagrams no longer reach the autopilot, as if the bridge had
+    /// been killed, its computer's power cut or its cable pulled: no last word.
+    pub fn silence_bridge(&self) {
+        self.state.lock().unwrap().bridge_silenced = true;
     }
 
     /// Every SERVO_OUTPUT_RAW passed on since `since`.
