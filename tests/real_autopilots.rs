@@ -906,6 +906,37 @@ fn autopilot_mode_after(gcs: &GroundStation, mark: usize, what: &str, mode: u64)
     })
 }
 
+/// The applet's LJ9S rows (label, state) in the newest `.BIN` log of `logs`, as pymavlink's
+/// log reader (the one `mavlogdump.py` uses) reads them.
+fn logged_states(logs: &std::path::Path) -> Vec<(String, i64)> {
+    let newest = std::fs::read_dir(logs)
+        .unwrap_or_else(|e| panic!("{}: {e}", logs.display()))
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "BIN"))
+        .max_by_key(|p| std::fs::metadata(p).and_then(|m| m.modified()).ok())
+        .expect("a .BIN log");
+    let script = "import json, sys\n\
+        from pymavlink import mavutil\n\
+        log = mavutil.mavlink_connection(sys.argv[1])\n\
+        rows = []\n\
+        while (m := log.recv_match(type='LJ9S')) is not None:\n    \
+            rows.append([m.Label, m.State])\n\
+        print(json.dumps(rows))\n";
+    let out = std::process::Command::new(common::python::python())
+        .arg("-c")
+        .arg(script)
+        .arg(&newest)
+        .output()
+        .expect("python runs");
+    assert!(
+        out.status.success(),
+        "reading {}: {}",
+        newest.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("the rows as JSON")
+}
+
 /// The autopilot's STATUSTEXT `text` after `mark` (within 10 s).
 fn applet_text_after(gcs: &GroundStation, mark: usize, text: &str) -> GcsMessage {
     gcs.wait_for_after(mark, &format!("\"{text}\""), SECS(10), |m| {
@@ -1032,6 +1063,17 @@ async fn arduplane_applet_refuses_arming_for_a_lost_servo_and_acts_when_the_brid
     autopilot_mode_after(&gcs, gcs.mark(), "RTL", PLANE_RTL);
     let said = texts_after(&gcs, mark, "LJ9DA: bridge silent 3 s");
     assert_eq!(said, 1, "the bridge's loss said {said} times");
+
+    // The autopilot's own log holds the servos' states, the rudder's loss among them.
+    let states = logged_states(&dir.join("logs"));
+    for (label, state) in [("rudder", 0), ("rudder", 1), ("ail_l", 0)] {
+        assert!(
+            states.iter().any(|(l, s)| l == label && *s == state),
+            "no LJ9S row {label} = {state} in the autopilot's log: {} rows, the last: {:?}",
+            states.len(),
+            &states[states.len().saturating_sub(8)..]
+        );
+    }
     eprintln!(
         "the applet said the rudder lost after {servo_noticed:?}, the bridge after {noticed:?}"
     );

@@ -25,6 +25,9 @@
      LJ9_FS_MODE >= 0, switches to that mode (once per loss); says once at INFO when it is back
      ("LJ9DA: bridge back", "LJ9DA: rudder back"). Other faults in flight (temperature, stall)
      are left to the bridge's own STATUSTEXTs.
+   - Writes every servo state it hears into the autopilot's log (the .bin of the SD card) as
+     message LJ9S: Label (the servo's label), State (the bits above), about once a second per
+     servo and at each change. Mission Planner, UAV Log Viewer and mavlogdump.py show it.
    - Runs every 100 ms. On a vehicle without the bridge it refuses arming with "bridge silent"
      and does nothing else.
 
@@ -177,6 +180,8 @@ local function read_messages()
                end
                s.value = value
                s.heard = at
+               -- into the autopilot's own log (.bin): LJ9S, one row per state heard
+               logger:write("LJ9S", "Label,State", "Ni", "--", "--", label, value)
             end
          end
       end
