@@ -105,7 +105,7 @@ local function timeout_ms()
 end
 
 local function silent_text()
-   return string.format("silent %g s", LJ9_TIMEOUT:get())
+   return string.format("silent %g s", timeout_ms() / 1000)
 end
 
 local function describe(value)
