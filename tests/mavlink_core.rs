@@ -776,3 +776,122 @@ fn the_autopilots_clock_is_kept_for_the_record_once_a_second_and_never_from_a_ze
     c.handle_message(0, &header(AP), &outputs_at(0), later);
     assert_eq!(c.poll_autopilot_clock(), None);
 }
+
+/// ArduPilot's SYS_STATUS: motor outputs present, and enabled unless its safety switch is on.
+fn sys_status(safety_on: bool) -> MavMessage {
+    let outputs = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS;
+    MavMessage::SYS_STATUS(SYS_STATUS_DATA {
+        onboard_control_sensors_present: outputs
+            | MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_3D_GYRO,
+        onboard_control_sensors_enabled: if safety_on {
+            MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_3D_GYRO
+        } else {
+            outputs | MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_3D_GYRO
+        },
+        ..Default::default()
+    })
+}
+
+/// The autopilot's PARAM_VALUE of BRD_SAFETY_MASK (ArduPilot sends integers as their value).
+fn safety_mask(mask: u32) -> MavMessage {
+    let mut id = [0u8; 16];
+    id[..15].copy_from_slice(b"BRD_SAFETY_MASK");
+    MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
+        param_value: mask as f32,
+        param_count: 900,
+        param_index: 100,
+        param_id: id.into(),
+        param_type: MavParamType::MAV_PARAM_TYPE_INT32,
+    })
+}
+
+fn positions(got: &[(usize, Goal)]) -> Vec<usize> {
+    got.iter()
+        .filter(|(_, g)| matches!(g, Goal::Position(_)))
+        .map(|(s, _)| *s)
+        .collect()
+}
+
+#[test]
+fn ardupilots_safety_switch_holds_every_servo_off_its_safety_mask() {
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    messages(&mut c);
+    c.handle_message(0, &header(AP), &sys_status(true), t0);
+    let out = messages(&mut c);
+    let asked = out.iter().any(|o| {
+        matches!(&o.message, MavMessage::PARAM_REQUEST_READ(r)
+            if r.param_id.to_str().unwrap() == "BRD_SAFETY_MASK"
+                && (r.target_system, r.target_component) == AP
+                && r.param_index == -1)
+    });
+    assert!(asked, "BRD_SAFETY_MASK asked of the autopilot: {out:?}");
+    assert!(
+        statustexts(&out)
+            .iter()
+            .any(|(_, t)| t == "LJ9DA: autopilot safety on, servos hold"),
+        "{out:?}"
+    );
+    // Safety on, the mask not known yet: nothing moves, whatever the outputs say.
+    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1800), (9, 1100)]), t0);
+    assert_eq!(positions(&commands(&mut c)), Vec::<usize>::new());
+    // The mask lets output 9 (the gear) move with the safety on, not output 1.
+    c.handle_message(0, &header(AP), &safety_mask(1 << 8), t0);
+    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1810), (9, 1110)]), t0);
+    assert_eq!(positions(&commands(&mut c)), vec![2]);
+    // Safety off (past the texts' flood guard): the autopilot's current outputs, all of them.
+    let t1 = t0 + Duration::from_secs(5);
+    c.handle_message(0, &header(AP), &sys_status(false), t1);
+    assert!(
+        statustexts(&messages(&mut c))
+            .iter()
+            .any(|(_, t)| t == "LJ9DA: autopilot safety off")
+    );
+    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1810), (9, 1110)]), t1);
+    assert_eq!(positions(&commands(&mut c)), vec![0]);
+}
+
+#[test]
+fn the_safety_switch_is_only_the_ardupilot_autopilots_own() {
+    let t0 = Instant::now();
+    // A stranger's SYS_STATUS, or the autopilot's on another link: nothing is held.
+    let mut c = running(t0);
+    c.handle_message(0, &header((7, 190)), &sys_status(true), t0);
+    c.handle_message(1, &header(AP), &sys_status(true), t0);
+    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1800)]), t0);
+    assert_eq!(positions(&commands(&mut c)), vec![0]);
+    // PX4 has no safety mask to read: its SYS_STATUS holds nothing back.
+    let mut c = core(t0);
+    let px4 = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        mavtype: MavType::MAV_TYPE_FIXED_WING,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+        ..Default::default()
+    });
+    c.handle_message(0, &header(AP), &px4, t0);
+    c.handle_message(0, &header(AP), &sys_status(true), t0);
+    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1800)]), t0);
+    assert_eq!(positions(&commands(&mut c)), vec![0]);
+}
+
+#[test]
+fn the_safety_switch_holds_a_failsafe_position_and_do_set_servo_too() {
+    let t0 = Instant::now();
+    let mut c = running(t0);
+    c.handle_message(0, &header(AP), &outputs(1, &[(2, 1600)]), t0);
+    commands(&mut c);
+    c.handle_message(0, &header(AP), &sys_status(true), t0);
+    c.handle_message(0, &header(AP), &safety_mask(0), t0);
+    // DO_SET_SERVO of output 1 from the autopilot's link: held.
+    let set_servo = command_long(
+        MavCmd::MAV_CMD_DO_SET_SERVO,
+        [1.0, 1900.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        (AP.0, 140),
+    );
+    c.handle_message(0, &header(AP), &set_servo, t0);
+    assert_eq!(positions(&commands(&mut c)), Vec::<usize>::new());
+    // The stream stops: aileron_right's failsafe is a position (5 mm): held too.
+    let later = t0 + Duration::from_millis(600);
+    c.handle_timeout(later, &[]);
+    let got = commands(&mut c);
+    assert_eq!(positions(&got), Vec::<usize>::new(), "{got:?}");
+}

@@ -690,6 +690,8 @@ fn unsigned_param_set(bridge_port: u16, name: &str, value: f32) {
 }
 
 const MAV_CMD_DO_SET_ACTUATOR: u32 = 187;
+/// param1: MAV_SAFETY_SWITCH_STATE, 0 safe (the switch on), 1 dangerous (off).
+const MAV_CMD_DO_SET_SAFETY_SWITCH_STATE: u32 = 5300;
 const MAV_CMD_COMPONENT_ARM_DISARM: u32 = 400;
 
 /// PX4's parameters from the page, as `(NAME, value)`.
@@ -944,6 +946,14 @@ fn applet_text_after(gcs: &GroundStation, mark: usize, text: &str) -> GcsMessage
     })
 }
 
+/// The bridge's STATUSTEXT `text`, relayed by the autopilot, after `mark` (within 10 s: its
+/// flood guard holds a second text of a kind for 3 s).
+fn bridge_text_after(gcs: &GroundStation, mark: usize, text: &str) -> GcsMessage {
+    gcs.wait_for_after(mark, &format!("the bridge's \"{text}\""), SECS(10), |m| {
+        m["msg"] == "STATUSTEXT" && autopilots::from(m, 1, 140) && m["text"] == text
+    })
+}
+
 /// How many of the autopilot's STATUSTEXTs after `mark` are `text`.
 fn texts_after(gcs: &GroundStation, mark: usize, text: &str) -> usize {
     gcs.heard_after(mark)
@@ -988,6 +998,24 @@ async fn arduplane_applet_refuses_arming_for_a_lost_servo_and_acts_when_the_brid
     assert!(chain.sims[0].handle().unplug(4));
     tap.to_bridge(chain.autopilot_port);
     refused_for(&mut gcs, "LJ9DA: rudder offline", SECS(30));
+
+    // The autopilot's safety switch on: the bridge reads it from the autopilot's SYS_STATUS
+    // and says so; off again before arming (ArduPilot does not arm with it on).
+    let mark = gcs.mark();
+    assert_eq!(
+        command(&mut gcs, MAV_CMD_DO_SET_SAFETY_SWITCH_STATE, [0.0; 7]),
+        0,
+        "safety on"
+    );
+    bridge_text_after(&gcs, mark, "LJ9DA: autopilot safety on, servos hold");
+    let mark = gcs.mark();
+    let dangerous = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    assert_eq!(
+        command(&mut gcs, MAV_CMD_DO_SET_SAFETY_SWITCH_STATE, dangerous),
+        0,
+        "safety off"
+    );
+    bridge_text_after(&gcs, mark, "LJ9DA: autopilot safety off");
 
     // Plugged back in: the applet lets the autopilot arm (once its own checks pass too).
     assert!(chain.sims[0].handle().plug(4));

@@ -28,6 +28,8 @@
 //!   ends its failsafe like a message carrying its channel. A servo with an `actuator` key
 //!   whose channel no output message has ever carried is driven by commands alone: only the
 //!   stream's failsafe applies to it.
+//! - While ArduPilot's safety switch is on (its SYS_STATUS), a servo off its
+//!   `BRD_SAFETY_MASK` gets no goal that moves it (`core/safety.rs`).
 //! - The autopilot's HEARTBEAT is relayed to the ground-station link (`[mavlink] gcs`), so
 //!   that QGroundControl, which creates a vehicle only from an autopilot's HEARTBEAT, shows
 //!   the bridge's messages there.
@@ -35,6 +37,7 @@
 //!   event.
 
 mod commands;
+mod safety;
 
 use super::commands::Command;
 use super::health::{BridgeEvent, ServoReport};
@@ -160,6 +163,8 @@ pub struct BridgeCore {
     clock: Option<AutopilotClock>,
     /// When a clock was last handed out by [`BridgeCore::poll_autopilot_clock`].
     clock_taken_at: Option<Instant>,
+    /// The autopilot's safety switch (see `core/safety.rs`).
+    safety: safety::Safety,
 }
 
 /// The autopilot's boot clock as one of its output messages carried it.
@@ -228,6 +233,7 @@ impl BridgeCore {
             servo_info: vec![ServoInfo::default(); servo_count],
             clock: None,
             clock_taken_at: None,
+            safety: safety::Safety::default(),
             cfg,
         }
     }
@@ -298,6 +304,8 @@ impl BridgeCore {
                 | MavMessage::COMMAND_ACK(_)
                 | MavMessage::SERVO_OUTPUT_RAW(_)
                 | MavMessage::ACTUATOR_OUTPUT_STATUS(_)
+                | MavMessage::SYS_STATUS(_)
+                | MavMessage::PARAM_VALUE(_)
         )
     }
 
@@ -325,6 +333,9 @@ impl BridgeCore {
                 self.system_id.get_or_insert(system_id);
                 self.next_stream_request = now;
                 tracing::info!(system = from.0, component = from.1, "autopilot found");
+            }
+            if link == AUTOPILOT_LINK && Some(from) == self.autopilot {
+                self.safety_heartbeat(hb.autopilot == MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA);
             }
             if link == AUTOPILOT_LINK
                 && Some(from) == self.autopilot
@@ -361,6 +372,14 @@ impl BridgeCore {
                     .handle(link, msg, us, &self.cfg, &self.servo_info);
                 self.send_params(out);
             }
+            return;
+        }
+        if let MavMessage::SYS_STATUS(status) = msg {
+            self.handle_sys_status(link, from, status, now);
+            return;
+        }
+        if let MavMessage::PARAM_VALUE(value) = msg {
+            self.handle_autopilot_param(link, from, value);
             return;
         }
         if let MavMessage::COMMAND_ACK(ack) = msg {
@@ -498,6 +517,11 @@ impl BridgeCore {
 
     fn command(&mut self, servo: usize, command: Goal) {
         let slot = &mut self.servos[servo];
+        // Held back by the autopilot's safety switch: not sent, and not taken as sent, so that
+        // the same goal goes out once the switch is off.
+        if self.safety.holds(slot.channel, command) {
+            return;
+        }
         if slot.last_command != Some(command) {
             slot.last_command = Some(command);
             self.commands.push_back((servo, command));

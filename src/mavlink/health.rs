@@ -127,4 +127,8 @@ pub enum BridgeEvent {
     PortBack {
         bus: String,
     },
+    /// ArduPilot's safety switch went on (servos off its `BRD_SAFETY_MASK` hold) or off.
+    Safety {
+        on: bool,
+    },
 }

@@ -82,6 +82,14 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
         BridgeEvent::PortBack { bus } => {
             (MAV_SEVERITY_NOTICE, format!("LJ9DA bus {bus}: port back"))
         }
+        BridgeEvent::Safety { on: true } => (
+            MAV_SEVERITY_NOTICE,
+            "LJ9DA: autopilot safety on, servos hold".to_string(),
+        ),
+        BridgeEvent::Safety { on: false } => (
+            MAV_SEVERITY_NOTICE,
+            "LJ9DA: autopilot safety off".to_string(),
+        ),
     };
     (severity, fit(text))
 }
@@ -144,6 +152,7 @@ fn kind(event: &BridgeEvent) -> (Subject, u8) {
             (Subject::Servo(*servo), 6)
         }
         BridgeEvent::SourceRefused { .. } => (Subject::Bridge, 13),
+        BridgeEvent::Safety { .. } => (Subject::Bridge, 14),
         BridgeEvent::PortLost { bus } | BridgeEvent::PortBack { bus } => {
             (Subject::Bus(bus.clone()), 11)
         }

@@ -1,0 +1,122 @@
+//! ArduPilot's safety switch, obeyed: while it is on, ArduPilot drives only the outputs of its
+//! `BRD_SAFETY_MASK`, but its SERVO_OUTPUT_RAW goes on reporting what it would output
+//! (`hal.rcout->read()`). So the bridge watches the autopilot's SYS_STATUS
+//! (`MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS` present and not enabled: the safety is on), reads
+//! `BRD_SAFETY_MASK` from the autopilot, and meanwhile moves no servo whose output is not in
+//! the mask: each holds its last goal, as a servo on the autopilot's own output does without
+//! its pulse. Until the mask is read, no servo moves. A servo may still be switched off or
+//! braked (a failsafe action that moves nothing); a failsafe position waits too.
+//!
+//! PX4 has no safety mask and reports its outputs' disarmed values itself: only an ArduPilot
+//! autopilot's SYS_STATUS counts.
+
+use super::{AUTOPILOT_LINK, BridgeCore, LinkId, Outgoing};
+use crate::bus::Goal;
+use crate::mavlink::health::BridgeEvent;
+use mavlink::dialects::common::{
+    MavMessage, MavSysStatusSensor, PARAM_REQUEST_READ_DATA, PARAM_VALUE_DATA, SYS_STATUS_DATA,
+};
+use std::time::{Duration, Instant};
+
+/// The autopilot's parameter of the outputs that move with the safety on.
+pub const SAFETY_MASK_PARAM: &str = "BRD_SAFETY_MASK";
+
+/// How often the mask is asked for while it is not known.
+const ASK_AGAIN: Duration = Duration::from_secs(1);
+
+/// What the bridge knows of the autopilot's safety switch.
+#[derive(Debug, Default)]
+pub(super) struct Safety {
+    /// The autopilot is ArduPilot (its HEARTBEAT says so).
+    ardupilot: bool,
+    /// Its SYS_STATUS says the outputs are held safe.
+    on: bool,
+    /// `BRD_SAFETY_MASK`, once read: bit n-1 is output n.
+    mask: Option<u32>,
+    asked_at: Option<Instant>,
+}
+
+impl Safety {
+    /// Whether a goal for a servo on `channel` is held back now.
+    pub(super) fn holds(&self, channel: u8, goal: Goal) -> bool {
+        let moves = matches!(goal, Goal::Position(_));
+        let in_mask =
+            (1..=32).contains(&channel) && self.mask.is_some_and(|m| m & (1 << (channel - 1)) != 0);
+        self.on && moves && !in_mask
+    }
+}
+
+impl BridgeCore {
+    /// The autopilot's HEARTBEAT: which autopilot it is.
+    pub(super) fn safety_heartbeat(&mut self, ardupilot: bool) {
+        self.safety.ardupilot = ardupilot;
+        if !ardupilot && self.safety.on {
+            self.safety.on = false;
+        }
+    }
+
+    /// SYS_STATUS from the autopilot on its link.
+    pub(super) fn handle_sys_status(
+        &mut self,
+        link: LinkId,
+        from: (u8, u8),
+        s: &SYS_STATUS_DATA,
+        now: Instant,
+    ) {
+        if link != AUTOPILOT_LINK || Some(from) != self.autopilot || !self.safety.ardupilot {
+            return;
+        }
+        let outputs = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS;
+        let on = s.onboard_control_sensors_present.contains(outputs)
+            && !s.onboard_control_sensors_enabled.contains(outputs);
+        if on != self.safety.on {
+            self.safety.on = on;
+            self.event(BridgeEvent::Safety { on }, now);
+        }
+        self.ask_safety_mask(now);
+    }
+
+    /// PARAM_VALUE from the autopilot on its link: the mask when it is the mask.
+    pub(super) fn handle_autopilot_param(
+        &mut self,
+        link: LinkId,
+        from: (u8, u8),
+        p: &PARAM_VALUE_DATA,
+    ) {
+        if link != AUTOPILOT_LINK
+            || Some(from) != self.autopilot
+            || p.param_id.to_str().ok() != Some(SAFETY_MASK_PARAM)
+            || !(p.param_value.is_finite() && p.param_value >= 0.0)
+        {
+            return;
+        }
+        self.safety.mask = Some(p.param_value.round() as u32);
+    }
+
+    /// While the safety is on and the mask unknown, ask for it (again every [`ASK_AGAIN`]).
+    fn ask_safety_mask(&mut self, now: Instant) {
+        let Some((target_system, target_component)) = self.autopilot else {
+            return;
+        };
+        let due = self
+            .safety
+            .asked_at
+            .is_none_or(|at| now.saturating_duration_since(at) >= ASK_AGAIN);
+        if !self.safety.on || self.safety.mask.is_some() || !due {
+            return;
+        }
+        self.safety.asked_at = Some(now);
+        let mut param_id = [0u8; 16];
+        param_id[..SAFETY_MASK_PARAM.len()].copy_from_slice(SAFETY_MASK_PARAM.as_bytes());
+        self.outgoing.push_back(Outgoing {
+            message: MavMessage::PARAM_REQUEST_READ(PARAM_REQUEST_READ_DATA {
+                param_index: -1,
+                target_system,
+                target_component,
+                param_id: param_id.into(),
+            }),
+            link: Some(AUTOPILOT_LINK),
+            sender: None,
+        });
+    }
+}
