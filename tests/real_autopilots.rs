@@ -939,26 +939,24 @@ fn logged_states(logs: &std::path::Path) -> Vec<(String, i64)> {
     serde_json::from_slice(&out.stdout).expect("the rows as JSON")
 }
 
-/// The autopilot's STATUSTEXT `text` after `mark` (within 10 s).
-fn applet_text_after(gcs: &GroundStation, mark: usize, text: &str) -> GcsMessage {
-    gcs.wait_for_after(mark, &format!("\"{text}\""), SECS(10), |m| {
-        m["msg"] == "STATUSTEXT" && autopilots::from(m, 1, 1) && m["text"] == text
-    })
+/// Whether `m` is a STATUSTEXT `text` from component `component` of system 1 (1: the
+/// autopilot's own, 140: the bridge's, relayed by the autopilot).
+fn is_text(m: &GcsMessage, component: u8, text: &str) -> bool {
+    m["msg"] == "STATUSTEXT" && autopilots::from(m, 1, component) && m["text"] == text
 }
 
-/// The bridge's STATUSTEXT `text`, relayed by the autopilot, after `mark` (within 10 s: its
-/// flood guard holds a second text of a kind for 3 s).
-fn bridge_text_after(gcs: &GroundStation, mark: usize, text: &str) -> GcsMessage {
-    gcs.wait_for_after(mark, &format!("the bridge's \"{text}\""), SECS(10), |m| {
-        m["msg"] == "STATUSTEXT" && autopilots::from(m, 1, 140) && m["text"] == text
-    })
+/// The STATUSTEXT `text` of `component` after `mark`, within 10 s (the bridge's flood guard
+/// holds a second text of a kind for 3 s).
+fn text_after(gcs: &GroundStation, mark: usize, component: u8, text: &str) -> GcsMessage {
+    let what = format!("\"{text}\" from component {component}");
+    gcs.wait_for_after(mark, &what, SECS(10), |m| is_text(m, component, text))
 }
 
 /// How many of the autopilot's STATUSTEXTs after `mark` are `text`.
 fn texts_after(gcs: &GroundStation, mark: usize, text: &str) -> usize {
     gcs.heard_after(mark)
         .iter()
-        .filter(|m| m["msg"] == "STATUSTEXT" && autopilots::from(m, 1, 1) && m["text"] == text)
+        .filter(|m| is_text(m, 1, text))
         .count()
 }
 
@@ -1007,7 +1005,7 @@ async fn arduplane_applet_refuses_arming_for_a_lost_servo_and_acts_when_the_brid
         0,
         "safety on"
     );
-    bridge_text_after(&gcs, mark, "LJ9DA: autopilot safety on, servos hold");
+    text_after(&gcs, mark, 140, "LJ9DA: autopilot safety on, servos hold");
     let mark = gcs.mark();
     let dangerous = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
     assert_eq!(
@@ -1015,7 +1013,7 @@ async fn arduplane_applet_refuses_arming_for_a_lost_servo_and_acts_when_the_brid
         0,
         "safety off"
     );
-    bridge_text_after(&gcs, mark, "LJ9DA: autopilot safety off");
+    text_after(&gcs, mark, 140, "LJ9DA: autopilot safety off");
 
     // Plugged back in: the applet lets the autopilot arm (once its own checks pass too).
     assert!(chain.sims[0].handle().plug(4));
@@ -1032,7 +1030,7 @@ async fn arduplane_applet_refuses_arming_for_a_lost_servo_and_acts_when_the_brid
         std::thread::sleep(Duration::from_millis(800));
     }
 
-    // Armed in MANUAL, the action set to RTL; then the bridge goes silent.
+    // Armed: the action set to RTL, the vehicle in MANUAL.
     let mark = gcs.mark();
     gcs.send(
         "PARAM_SET",
@@ -1049,7 +1047,7 @@ async fn arduplane_applet_refuses_arming_for_a_lost_servo_and_acts_when_the_brid
     let mark = gcs.mark();
     let unplugged = Instant::now();
     assert!(chain.sims[0].handle().unplug(4));
-    let lost = applet_text_after(&gcs, mark, "LJ9DA: rudder offline");
+    let lost = text_after(&gcs, mark, 1, "LJ9DA: rudder offline");
     let servo_noticed = unplugged.elapsed();
     assert_eq!(lost["severity"], 2, "MAV_SEVERITY_CRITICAL: {lost}");
     autopilot_mode_after(&gcs, mark, "RTL after the rudder was lost", PLANE_RTL);
@@ -1061,7 +1059,7 @@ async fn arduplane_applet_refuses_arming_for_a_lost_servo_and_acts_when_the_brid
         "the rudder's loss said after {servo_noticed:?}"
     );
     assert!(chain.sims[0].handle().plug(4));
-    let back = applet_text_after(&gcs, mark, "LJ9DA: rudder back");
+    let back = text_after(&gcs, mark, 1, "LJ9DA: rudder back");
     assert_eq!(back["severity"], 6, "MAV_SEVERITY_INFO: {back}");
     let said = texts_after(&gcs, mark, "LJ9DA: rudder offline");
     assert_eq!(said, 1, "the rudder's loss said {said} times");
@@ -1072,7 +1070,7 @@ async fn arduplane_applet_refuses_arming_for_a_lost_servo_and_acts_when_the_brid
     autopilot_mode_after(&gcs, mark, "MANUAL", PLANE_MANUAL);
     let silenced = Instant::now();
     tap.silence_bridge();
-    let critical = applet_text_after(&gcs, mark, "LJ9DA: bridge silent 3 s");
+    let critical = text_after(&gcs, mark, 1, "LJ9DA: bridge silent 3 s");
     let noticed = silenced.elapsed();
     assert_eq!(critical["severity"], 2, "MAV_SEVERITY_CRITICAL: {critical}");
     let rtl = autopilot_mode_after(&gcs, mark, "RTL after the bridge went silent", PLANE_RTL);

@@ -50,7 +50,7 @@ impl BridgeCore {
     /// The autopilot's HEARTBEAT: which autopilot it is.
     pub(super) fn safety_heartbeat(&mut self, ardupilot: bool) {
         self.safety.ardupilot = ardupilot;
-        if !ardupilot && self.safety.on {
+        if !ardupilot {
             self.safety.on = false;
         }
     }
