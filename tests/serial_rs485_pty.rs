@@ -149,10 +149,13 @@ fn the_bridge_says_at_start_which_bus_is_not_started_and_what_to_check() {
     let dir = std::env::temp_dir().join(format!("lj9da-rs485-run-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let mapping = dir.join("hat.toml");
-    std::fs::write(
-        &mapping,
-        format!(
-            r#"[mavlink]
+    // The bridge refuses a port another program took after the test found it free (see
+    // `ports`), naming that program: it starts again on another port.
+    let (mut child, seen, refusal, tail_open) = loop {
+        std::fs::write(
+            &mapping,
+            format!(
+                r#"[mavlink]
 connection = "udpin:127.0.0.1:{}"
 
 [record]
@@ -179,62 +182,70 @@ bus = "tail"
 id = 2
 channel = 4
 "#,
-            ports::free_udp_port(),
-            refusing_path.display(),
-            plain_path.display()
-        ),
-    )
-    .unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
-        .args(["run", "--config"])
-        .arg(&mapping)
-        .env("RUST_LOG", "lj9da_bridge=info")
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("the bridge starts");
-    let stderr = child.stderr.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            if tx.send(line).is_err() {
-                break;
+                ports::free_udp_port(),
+                refusing_path.display(),
+                plain_path.display()
+            ),
+        )
+        .unwrap();
+        let mut child = Command::new(env!("CARGO_BIN_EXE_lj9da-bridge"))
+            .args(["run", "--config"])
+            .arg(&mapping)
+            .env("RUST_LOG", "lj9da_bridge=info")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("the bridge starts");
+        let stderr = child.stderr.take().unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut seen = Vec::new();
+        let mut refusal = None;
+        let mut tail_open = false;
+        let mut told_ground = false;
+        let deadline = std::time::Instant::now() + PATIENCE;
+        // The other bus's servo found silent comes some 300 ms after the ports were opened: by
+        // then any second report of the wing's port would have been logged too.
+        let mut tail_servo_lost = false;
+        while refusal.is_none() || !tail_open || !told_ground || !tail_servo_lost {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            match rx.recv_timeout(left) {
+                Ok(line) => {
+                    if line.contains("not started") {
+                        refusal = Some(line.clone());
+                    }
+                    if line.contains("servo 2 lost") {
+                        tail_servo_lost = true;
+                    }
+                    // The STATUSTEXT to the ground station, as the MAVLink side logs it.
+                    if line.contains("LJ9DA bus wing: port lost") {
+                        told_ground = true;
+                    }
+                    if line.contains("serial port open")
+                        && line.contains(&*plain_path.to_string_lossy())
+                    {
+                        tail_open = true;
+                    }
+                    seen.push(line);
+                }
+                Err(_) => break,
             }
         }
-    });
-    let mut seen = Vec::new();
-    let mut refusal = None;
-    let mut tail_open = false;
-    let mut told_ground = false;
-    let deadline = std::time::Instant::now() + PATIENCE;
-    // The other bus's servo found silent comes some 300 ms after the ports were opened: by
-    // then any second report of the wing's port would have been logged too.
-    let mut tail_servo_lost = false;
-    while refusal.is_none() || !tail_open || !told_ground || !tail_servo_lost {
-        let left = deadline.saturating_duration_since(std::time::Instant::now());
-        match rx.recv_timeout(left) {
-            Ok(line) => {
-                if line.contains("not started") {
-                    refusal = Some(line.clone());
-                }
-                if line.contains("servo 2 lost") {
-                    tail_servo_lost = true;
-                }
-                // The STATUSTEXT to the ground station, as the MAVLink side logs it.
-                if line.contains("LJ9DA bus wing: port lost") {
-                    told_ground = true;
-                }
-                if line.contains("serial port open")
-                    && line.contains(&*plain_path.to_string_lossy())
-                {
-                    tail_open = true;
-                }
-                seen.push(line);
-            }
-            Err(_) => break,
+        if let Some(line) = seen.iter().find(|l| l.contains(ports::TAKEN)) {
+            eprintln!("started again on another port: {line}");
+            let _ = child.kill();
+            let _ = child.wait();
+            continue;
         }
-    }
+        break (child, seen, refusal, tail_open);
+    };
     let _ = child.kill();
     let _ = child.wait();
     let _ = std::fs::remove_dir_all(&dir);

@@ -43,6 +43,21 @@ impl Service {
     /// `lj9da-bridge run` with bus "wing" on a simulated bus (servos 1 and 2) and bus "tail" on
     /// a port that does not exist, under a notify socket and a watchdog; `env`: more variables.
     fn start(tag: &str, env: &[(&str, &str)]) -> Self {
+        loop {
+            let mut service = Self::start_once(tag, env);
+            // The bridge refuses a port another program took after the test found it free
+            // (see `ports`): that program is named in the line; start again on another port.
+            service.listen_until(PATIENCE, |h| {
+                log_has(h, "MAVLink links set up").is_some() || log_has(h, ports::TAKEN).is_some()
+            });
+            match log_line(&service.heard, ports::TAKEN) {
+                Some(line) => eprintln!("started again on another port: {line}"),
+                None => return service,
+            }
+        }
+    }
+
+    fn start_once(tag: &str, env: &[(&str, &str)]) -> Self {
         let dir = TempDir::new(tag);
         let sim = spawn_sim(sim_config(&[1, 2], 115_200));
         let missing = dir.path().join("ttyUSB-missing");

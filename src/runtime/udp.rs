@@ -161,10 +161,18 @@ impl UdpIn {
         })?;
         let listening = Socket::open(local, None)?;
         let local = listening.socket.local_addr()?;
-        if listeners_on(local.port()) > 1 {
+        // The socket's inode, as the kernel's table lists it (`stat` through the fd's link).
+        let own = std::fs::metadata(format!("/proc/self/fd/{}", listening.socket.as_raw_fd()))
+            .map(|m| std::os::unix::fs::MetadataExt::ino(&m));
+        let others = others_listening(local, own.ok());
+        if !others.is_empty() {
             return Err(std::io::Error::new(
                 std::io::ErrorKind::AddrInUse,
-                format!("another program listens on UDP port {}", local.port()),
+                format!(
+                    "another program listens on UDP port {} ({})",
+                    local.port(),
+                    describe(&others)
+                ),
             ));
         }
         Ok(UdpIn {
@@ -359,28 +367,111 @@ impl Drop for UdpIn {
     }
 }
 
-/// Sockets listening (bound, not connected) on UDP `port`, as `/proc/net/udp` and `udp6` list
-/// them; 1 where they cannot be read (nothing to compare with).
-fn listeners_on(port: u16) -> usize {
-    let local = format!(":{port:04X}");
-    let count: usize = ["/proc/net/udp", "/proc/net/udp6"]
+/// A socket the kernel lists as bound and not connected: where it listens, and its inode.
+#[derive(Debug, PartialEq)]
+struct Listener {
+    local: SocketAddr,
+    inode: u64,
+}
+
+/// The other sockets listening on `local`'s port that would share its datagrams: bound, not
+/// connected, to the same address or to a wildcard one (either side's), as `/proc/net/udp`
+/// and `udp6` list them, `own` (the link's own socket) left out. None where they cannot be
+/// read: then only the kernel's own refusal at `bind` stands.
+fn others_listening(local: SocketAddr, own: Option<u64>) -> Vec<Listener> {
+    ["/proc/net/udp", "/proc/net/udp6"]
         .iter()
         .filter_map(|path| std::fs::read_to_string(path).ok())
-        .map(|table| {
+        .flat_map(|table| {
             table
                 .lines()
                 .skip(1)
-                .filter(|line| {
-                    let mut fields = line.split_whitespace().skip(1);
-                    let (Some(l), Some(r)) = (fields.next(), fields.next()) else {
-                        return false;
-                    };
-                    l.ends_with(&local) && r.ends_with(":0000")
-                })
-                .count()
+                .filter_map(listener_of)
+                .collect::<Vec<_>>()
         })
-        .sum();
-    count.max(1)
+        .filter(|l| Some(l.inode) != own && overlaps(l.local, local))
+        .collect()
+}
+
+/// The listening socket of one line of `/proc/net/udp` or `udp6` (`None`: a connected one, or
+/// a line that does not parse). Addresses there are hex, in the kernel's byte order: each
+/// 32-bit word as the machine stores it.
+fn listener_of(line: &str) -> Option<Listener> {
+    let fields: Vec<&str> = line.split_whitespace().collect();
+    let (local, remote, inode) = (fields.get(1)?, fields.get(2)?, fields.get(9)?);
+    if !remote.ends_with(":0000") {
+        return None;
+    }
+    let (address, port) = local.split_once(':')?;
+    let port = u16::from_str_radix(port, 16).ok()?;
+    let word = |i: usize| -> Option<[u8; 4]> {
+        Some(
+            u32::from_str_radix(address.get(8 * i..8 * i + 8)?, 16)
+                .ok()?
+                .to_ne_bytes(),
+        )
+    };
+    let ip: std::net::IpAddr = match address.len() {
+        8 => std::net::Ipv4Addr::from(word(0)?).into(),
+        32 => {
+            let mut bytes = [0u8; 16];
+            for i in 0..4 {
+                bytes[4 * i..4 * i + 4].copy_from_slice(&word(i)?);
+            }
+            std::net::Ipv6Addr::from(bytes).into()
+        }
+        _ => return None,
+    };
+    Some(Listener {
+        local: SocketAddr::new(ip, port),
+        inode: inode.parse().ok()?,
+    })
+}
+
+/// Whether datagrams to `ours` could go to a socket bound to `theirs`: the same port, and the
+/// same address or a wildcard on either side (a v6 wildcard takes IPv4 too, unless it is
+/// v6-only, which the table does not say).
+fn overlaps(theirs: SocketAddr, ours: SocketAddr) -> bool {
+    let (t, o) = (theirs.ip().to_canonical(), ours.ip().to_canonical());
+    theirs.port() == ours.port() && (t == o || t.is_unspecified() || o.is_unspecified())
+}
+
+/// Who holds `others`: each socket's address and the processes that have it open (their pid
+/// and name, from `/proc/<pid>/fd`), or that this user may not see them.
+fn describe(others: &[Listener]) -> String {
+    let mut holders: Vec<Vec<String>> = vec![Vec::new(); others.len()];
+    if let Ok(procs) = std::fs::read_dir("/proc") {
+        for pid in procs.filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok()) {
+            let Ok(fds) = std::fs::read_dir(format!("/proc/{pid}/fd")) else {
+                continue;
+            };
+            for fd in fds.filter_map(Result::ok) {
+                let Ok(target) = std::fs::read_link(fd.path()) else {
+                    continue;
+                };
+                let target = target.to_string_lossy();
+                for (socket, names) in others.iter().zip(&mut holders) {
+                    if target == format!("socket:[{}]", socket.inode) {
+                        let comm = std::fs::read_to_string(format!("/proc/{pid}/comm"))
+                            .unwrap_or_default();
+                        let holder = format!("pid {pid} {}", comm.trim());
+                        if !names.contains(&holder) {
+                            names.push(holder);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    others
+        .iter()
+        .zip(holders)
+        .map(|(socket, names)| match names.is_empty() {
+            true => format!("{}, by a process this user cannot see", socket.local),
+            false => format!("{}, by {}", socket.local, names.join(", ")),
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
 }
 
 #[cfg(test)]
@@ -496,6 +587,60 @@ mod tests {
             panic!("two links on {local}");
         };
         assert_eq!(e.kind(), std::io::ErrorKind::AddrInUse, "{e}");
-        assert!(e.to_string().contains("another program listens"), "{e}");
+        let told = e.to_string();
+        assert!(told.contains("another program listens"), "{told}");
+        // Who holds the port: this process, by its pid.
+        let pid = format!("pid {} ", std::process::id());
+        assert!(told.contains(&local) && told.contains(&pid), "{told}");
+    }
+
+    /// A socket on the same port of another address takes none of the link's datagrams: the
+    /// link opens beside it. One on the wildcard address would share them: refused, and named.
+    #[tokio::test]
+    async fn only_a_socket_that_would_share_the_datagrams_refuses_the_link() {
+        let beside = std::net::UdpSocket::bind("127.0.0.2:0").unwrap();
+        let port = beside.local_addr().unwrap().port();
+        let link = UdpIn::bind("udpin:beside", &format!("127.0.0.1:{port}"));
+        assert!(link.is_ok(), "{:?}", link.err());
+        drop(link);
+        // With `SO_REUSEPORT` on both, the kernel would let the link bind: the check refuses.
+        let wildcard = Socket::open("0.0.0.0:0".parse().unwrap(), None).unwrap();
+        let port = wildcard.socket.local_addr().unwrap().port();
+        let Err(e) = UdpIn::bind("udpin:under", &format!("127.0.0.1:{port}")) else {
+            panic!("a link beside a wildcard socket on port {port}");
+        };
+        assert!(e.to_string().contains(&format!("0.0.0.0:{port}")), "{e}");
+    }
+
+    /// The table's lines as the kernel writes them: a listening socket read back with its
+    /// address, a connected one left out.
+    #[test]
+    fn the_kernels_table_is_read_in_its_byte_order() {
+        let hex = |a: [u8; 4]| format!("{:08X}", u32::from_ne_bytes(a));
+        let listening = format!(
+            "  12: {}:3925 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 4242 2 0000000000000000 0",
+            hex([127, 0, 0, 1])
+        );
+        assert_eq!(
+            listener_of(&listening),
+            Some(Listener {
+                local: "127.0.0.1:14629".parse().unwrap(),
+                inode: 4242
+            })
+        );
+        let connected = listening.replace("00000000:0000", &format!("{}:3A98", hex([10, 0, 0, 2])));
+        assert_eq!(listener_of(&connected), None);
+        let v6 = format!(
+            "  3: {}{}{}{}:3925 00000000000000000000000000000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 77 2 0000000000000000 0",
+            hex([0, 0, 0, 0]),
+            hex([0, 0, 0, 0]),
+            hex([0, 0, 0, 0]),
+            hex([0, 0, 0, 1])
+        );
+        assert_eq!(
+            listener_of(&v6).unwrap().local,
+            "[::1]:14629".parse().unwrap()
+        );
+        assert_eq!(listener_of("garbage"), None);
     }
 }

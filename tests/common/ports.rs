@@ -10,6 +10,13 @@ use std::net::UdpSocket;
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU32, Ordering};
 
+/// What the bridge says when another program listens on its `udpin` port: one that took the
+/// port between the test's check and the bridge's bind (another test run on the machine, or
+/// a program of its own), named in the rest of the line. A test that meets it starts the
+/// bridge again on another port.
+#[allow(dead_code)]
+pub const TAKEN: &str = "another program listens on UDP port";
+
 /// The lowest port handed out.
 const LOWEST: u32 = 10_000;
 
