@@ -597,6 +597,13 @@ fn telemetry_and_bridge_values_are_checked() {
         "on_exit",
         "\"explode\" is not an exit action",
     );
+    let text = format!("{GOOD}\n[bridge]\nwhile_safe = \"limp\"\n");
+    refused(
+        &text,
+        "while_safe",
+        "while_safe",
+        "\"limp\" is not an action for the safety switch; use \"hold\", \"off\" or \"brake\"",
+    );
 }
 
 #[test]

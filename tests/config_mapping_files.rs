@@ -1,7 +1,7 @@
 //! Every mapping file shipped in `mappings/` is valid, and `check` shows what it resolves to.
 
 use lj9da_bridge::config::{
-    Config, ExitAction, FailsafeAction, PwmRange, SITL_DEFAULT_TOML, Source,
+    Config, FailsafeAction, ForceAction, PwmRange, SITL_DEFAULT_TOML, Source,
 };
 use lj9da_bridge::protocol::{BaudRate, MmCenti, ServoId};
 use std::path::{Path, PathBuf};
@@ -85,7 +85,7 @@ fn the_ardupilot_plane_has_four_servos_on_one_bus() {
     assert_eq!(c.mavlink.component_id, 140);
     // SYSID_THISMAV's default: back on the autopilot's first output after a restart.
     assert_eq!(c.mavlink.system_id, Some(1));
-    assert_eq!(c.bridge.on_exit, ExitAction::Hold);
+    assert_eq!(c.bridge.on_exit, ForceAction::Hold);
     assert_eq!(c.buses.len(), 1);
     assert_eq!(c.buses[0].baud, BaudRate::B115200);
     let by_name = |n: &str| c.servos.iter().find(|s| s.name == n).unwrap();

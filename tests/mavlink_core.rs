@@ -895,3 +895,34 @@ fn the_safety_switch_holds_a_failsafe_position_and_do_set_servo_too() {
     let got = commands(&mut c);
     assert_eq!(positions(&got), Vec::<usize>::new(), "{got:?}");
 }
+
+#[test]
+fn a_mapping_may_switch_the_servos_off_while_the_safety_is_on() {
+    let t0 = Instant::now();
+    let mapping = format!("{MAPPING}\n[bridge]\nwhile_safe = \"off\"\n");
+    let mut c = BridgeCore::new(Config::parse(&mapping, "test.toml").unwrap(), t0);
+    c.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
+    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), t0);
+    commands(&mut c);
+    c.handle_message(0, &header(AP), &sys_status(true), t0);
+    c.handle_message(0, &header(AP), &safety_mask(1 << 8), t0);
+    let out = messages(&mut c);
+    assert!(
+        statustexts(&out)
+            .iter()
+            .any(|(_, t)| t == "LJ9DA: autopilot safety on, servos off"),
+        "{out:?}"
+    );
+    // Output 1 is off the mask: its servo is switched off, once, however the output moves;
+    // output 9 is in it and moves.
+    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1800), (9, 1100)]), t0);
+    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1850), (9, 1100)]), t0);
+    let got = commands(&mut c);
+    let offs = got.iter().filter(|g| **g == (0, Goal::Off)).count();
+    assert_eq!((offs, positions(&got)), (1, vec![2]), "{got:?}");
+    // Safety off: the autopilot's output again (a move switches the force back on).
+    let t1 = t0 + Duration::from_secs(5);
+    c.handle_message(0, &header(AP), &sys_status(false), t1);
+    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1850), (9, 1100)]), t1);
+    assert_eq!(positions(&commands(&mut c)), vec![0]);
+}

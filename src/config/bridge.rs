@@ -4,10 +4,12 @@ use super::error::{ConfigError, Scope};
 use super::raw::RawBridge;
 use crate::protocol::ForceMode;
 use std::fmt;
+use toml::Spanned;
 
-/// What the servos are left doing when the bridge stops (Ctrl-C, SIGTERM).
+/// What the servos' force is left at, where the bridge sends no goal: when it stops (Ctrl-C,
+/// SIGTERM) and while the autopilot's safety switch is on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
-pub enum ExitAction {
+pub enum ForceAction {
     /// Force stays on at the last goal: the servos hold where they are, as they do when the
     /// bridge disappears without warning.
     #[default]
@@ -18,23 +20,23 @@ pub enum ExitAction {
     Brake,
 }
 
-impl ExitAction {
+impl ForceAction {
     /// The Force Enable value to leave the servos in.
     pub const fn force_mode(self) -> ForceMode {
         match self {
-            ExitAction::Hold => ForceMode::On,
-            ExitAction::Off => ForceMode::Off,
-            ExitAction::Brake => ForceMode::Brake,
+            ForceAction::Hold => ForceMode::On,
+            ForceAction::Off => ForceMode::Off,
+            ForceAction::Brake => ForceMode::Brake,
         }
     }
 }
 
-impl fmt::Display for ExitAction {
+impl fmt::Display for ForceAction {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(match self {
-            ExitAction::Hold => "hold",
-            ExitAction::Off => "off",
-            ExitAction::Brake => "brake",
+            ForceAction::Hold => "hold",
+            ForceAction::Off => "off",
+            ForceAction::Brake => "brake",
         })
     }
 }
@@ -43,28 +45,46 @@ impl fmt::Display for ExitAction {
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct BridgeSection {
     /// What the servos do when the bridge stops (default hold).
-    pub on_exit: ExitAction,
+    pub on_exit: ForceAction,
+    /// What a servo off the autopilot's safety mask does while ArduPilot's safety switch is on
+    /// (default hold: what an LJ9DA41 on the autopilot's own PWM output does when the safety
+    /// stops its pulses).
+    pub while_safe: ForceAction,
 }
 
 impl BridgeSection {
     pub(crate) fn from_raw(raw: &RawBridge, scope: &Scope<'_>) -> Result<Self, ConfigError> {
-        let on_exit = match &raw.on_exit {
-            None => ExitAction::default(),
-            Some(value) => {
-                match value.get_ref().trim().to_ascii_lowercase().as_str() {
-                    "hold" => ExitAction::Hold,
-                    "off" => ExitAction::Off,
-                    "brake" => ExitAction::Brake,
-                    other => {
-                        return Err(scope.error_on(
-                        value,
-                        "on_exit",
-                        format!("\"{other}\" is not an exit action; use \"hold\", \"off\" or \"brake\""),
-                    ));
-                    }
-                }
-            }
-        };
-        Ok(BridgeSection { on_exit })
+        Ok(BridgeSection {
+            on_exit: force_action(raw.on_exit.as_ref(), "on_exit", "an exit action", scope)?,
+            while_safe: force_action(
+                raw.while_safe.as_ref(),
+                "while_safe",
+                "an action for the safety switch",
+                scope,
+            )?,
+        })
+    }
+}
+
+/// `key`'s value, `"hold"`, `"off"` or `"brake"` (hold when it is not set); anything else is
+/// not `what`.
+fn force_action(
+    value: Option<&Spanned<String>>,
+    key: &str,
+    what: &str,
+    scope: &Scope<'_>,
+) -> Result<ForceAction, ConfigError> {
+    let Some(value) = value else {
+        return Ok(ForceAction::default());
+    };
+    match value.get_ref().trim().to_ascii_lowercase().as_str() {
+        "hold" => Ok(ForceAction::Hold),
+        "off" => Ok(ForceAction::Off),
+        "brake" => Ok(ForceAction::Brake),
+        other => Err(scope.error_on(
+            value,
+            key,
+            format!("\"{other}\" is not {what}; use \"hold\", \"off\" or \"brake\""),
+        )),
     }
 }

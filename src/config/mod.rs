@@ -24,6 +24,7 @@
 //! | | `esc_index_base` | 16 | the ESC index of the first servo (clear of motor ESCs) |
 //! | | `named_value_float`, `esc`, `statustext`, `servo_state` | true | which carriers are sent |
 //! | `[bridge]` | `on_exit` | `"hold"` | `"hold"`, `"off"` or `"brake"` when the bridge stops |
+//! | | `while_safe` | `"hold"` | `"hold"`, `"off"` or `"brake"` for a servo off ArduPilot's `BRD_SAFETY_MASK` while its safety switch is on |
 //! | `[[bus]]` | `name`, `port` | (required) | the bus's name and serial port |
 //! | | `baud` | 115200 | one of the servo's rates, 9600 … 460800 |
 //! | | `turnaround_ms` | bus master's own | extra reply allowance (return delay + adapter latency) |
@@ -61,7 +62,7 @@ pub mod signing_key;
 mod table;
 pub mod warnings;
 
-pub use bridge::{BridgeSection, ExitAction};
+pub use bridge::{BridgeSection, ForceAction};
 pub use bus::{BusSection, TelemetryRate};
 pub use error::{ConfigError, Location};
 pub use mavlink::{MavlinkConfig, Quantity, Source, TelemetryConfig};
@@ -385,7 +386,7 @@ mod tests {
         assert_eq!(c.telemetry.esc_status_hz, 1.0);
         assert_eq!(c.telemetry.esc_index_base, 16);
         assert_eq!(c.telemetry.named_values, mavlink::Quantity::ALL.to_vec());
-        assert_eq!(c.bridge.on_exit, ExitAction::Hold);
+        assert_eq!(c.bridge.on_exit, ForceAction::Hold);
         assert_eq!(c.buses[0].baud, BaudRate::B115200);
         assert_eq!(c.buses[0].turnaround_ms, None);
         let s = &c.servos[0];

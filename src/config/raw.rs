@@ -55,6 +55,7 @@ pub(crate) struct RawTelemetry {
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawBridge {
     pub on_exit: Option<Spanned<String>>,
+    pub while_safe: Option<Spanned<String>>,
 }
 
 #[derive(Debug, Deserialize)]

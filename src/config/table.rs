@@ -55,14 +55,15 @@ pub(super) fn resolved_table(config: &Config) -> String {
     .filter_map(|(on, name)| on.then_some(name))
     .collect();
     out.push_str(&format!(
-        "telemetry: {} | extra GCS output: {} | on exit: {}\n\n",
+        "telemetry: {} | extra GCS output: {} | on exit: {} | while the safety is on: {}\n\n",
         if carriers.is_empty() {
             "HEARTBEAT only".to_string()
         } else {
             carriers.join(", ")
         },
         m.gcs.as_deref().unwrap_or("none"),
-        config.bridge.on_exit
+        config.bridge.on_exit,
+        config.bridge.while_safe
     ));
 
     let mut buses = vec![row([

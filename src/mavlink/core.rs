@@ -518,10 +518,13 @@ impl BridgeCore {
     fn command(&mut self, servo: usize, command: Goal) {
         let slot = &mut self.servos[servo];
         // Held back by the autopilot's safety switch: not sent, and not taken as sent, so that
-        // the same goal goes out once the switch is off.
-        if self.safety.holds(slot.channel, command) {
+        // the same goal goes out once the switch is off; or force off or brake in its place.
+        let Some(command) = self
+            .safety
+            .gate(slot.channel, command, self.cfg.bridge.while_safe)
+        else {
             return;
-        }
+        };
         if slot.last_command != Some(command) {
             slot.last_command = Some(command);
             self.commands.push_back((servo, command));

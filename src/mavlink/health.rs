@@ -127,8 +127,10 @@ pub enum BridgeEvent {
     PortBack {
         bus: String,
     },
-    /// ArduPilot's safety switch went on (servos off its `BRD_SAFETY_MASK` hold) or off.
+    /// ArduPilot's safety switch went on (servos off its `BRD_SAFETY_MASK` do as the mapping's
+    /// `[bridge] while_safe` says: `servos`) or off.
     Safety {
         on: bool,
+        servos: crate::config::bridge::ForceAction,
     },
 }

@@ -82,11 +82,11 @@ pub fn describe(event: &BridgeEvent, servo_name: &str) -> (MavSeverity, String) 
         BridgeEvent::PortBack { bus } => {
             (MAV_SEVERITY_NOTICE, format!("LJ9DA bus {bus}: port back"))
         }
-        BridgeEvent::Safety { on: true } => (
+        BridgeEvent::Safety { on: true, servos } => (
             MAV_SEVERITY_NOTICE,
-            "LJ9DA: autopilot safety on, servos hold".to_string(),
+            format!("LJ9DA: autopilot safety on, servos {servos}"),
         ),
-        BridgeEvent::Safety { on: false } => (
+        BridgeEvent::Safety { on: false, .. } => (
             MAV_SEVERITY_NOTICE,
             "LJ9DA: autopilot safety off".to_string(),
         ),

@@ -19,7 +19,7 @@ mod udp;
 
 use crate::bus::{BusEvent, BusHandle, BusStatus, Health, ShutdownForce};
 use crate::config::edit::MappingFile;
-use crate::config::{Config, ExitAction};
+use crate::config::{Config, ForceAction};
 use crate::mavlink::outbox::Queued;
 use crate::mavlink::param_server::ParamSet;
 use crate::mavlink::signing::{self, DropCounts};
@@ -734,9 +734,9 @@ impl Bridge {
     /// Leave the servos as the mapping says, stop the tasks, close the flight record.
     async fn stop(self) {
         let leave = match self.cfg.bridge.on_exit {
-            ExitAction::Hold => ShutdownForce::AsIs,
-            ExitAction::Off => ShutdownForce::Off,
-            ExitAction::Brake => ShutdownForce::Brake,
+            ForceAction::Hold => ShutdownForce::AsIs,
+            ForceAction::Off => ShutdownForce::Off,
+            ForceAction::Brake => ShutdownForce::Brake,
         };
         tracing::info!(?leave, "stopping: closing the buses");
         for bus in &self.buses.handles {

@@ -3,8 +3,9 @@
 //! (`hal.rcout->read()`). So the bridge watches the autopilot's SYS_STATUS
 //! (`MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS` present and not enabled: the safety is on), reads
 //! `BRD_SAFETY_MASK` from the autopilot, and meanwhile moves no servo whose output is not in
-//! the mask: each holds its last goal, as a servo on the autopilot's own output does without
-//! its pulse. Until the mask is read, no servo moves. A servo may still be switched off or
+//! the mask: each does as the mapping's `[bridge] while_safe` says, by default holding its
+//! last goal, as a servo on the autopilot's own output does without its pulse (or force off,
+//! or brake). Until the mask is read, no servo moves. A servo may still be switched off or
 //! braked (a failsafe action that moves nothing); a failsafe position waits too.
 //!
 //! PX4 has no safety mask and reports its outputs' disarmed values itself: only an ArduPilot
@@ -12,6 +13,7 @@
 
 use super::{AUTOPILOT_LINK, BridgeCore, LinkId, Outgoing};
 use crate::bus::Goal;
+use crate::config::bridge::ForceAction;
 use crate::mavlink::health::BridgeEvent;
 use mavlink::dialects::common::{
     MavMessage, MavSysStatusSensor, PARAM_REQUEST_READ_DATA, PARAM_VALUE_DATA, SYS_STATUS_DATA,
@@ -37,12 +39,20 @@ pub(super) struct Safety {
 }
 
 impl Safety {
-    /// Whether a goal for a servo on `channel` is held back now.
-    pub(super) fn holds(&self, channel: u8, goal: Goal) -> bool {
+    /// What goes to a servo on `channel` for `goal` now: the goal itself, or while the safety
+    /// holds that servo, `while_safe` in place of a move (`None`: nothing, it holds).
+    pub(super) fn gate(&self, channel: u8, goal: Goal, while_safe: ForceAction) -> Option<Goal> {
         let moves = matches!(goal, Goal::Position(_));
         let in_mask =
             (1..=32).contains(&channel) && self.mask.is_some_and(|m| m & (1 << (channel - 1)) != 0);
-        self.on && moves && !in_mask
+        if !(self.on && moves && !in_mask) {
+            return Some(goal);
+        }
+        match while_safe {
+            ForceAction::Hold => None,
+            ForceAction::Off => Some(Goal::Off),
+            ForceAction::Brake => Some(Goal::Brake),
+        }
     }
 }
 
@@ -71,7 +81,8 @@ impl BridgeCore {
             && !s.onboard_control_sensors_enabled.contains(outputs);
         if on != self.safety.on {
             self.safety.on = on;
-            self.event(BridgeEvent::Safety { on }, now);
+            let servos = self.cfg.bridge.while_safe;
+            self.event(BridgeEvent::Safety { on, servos }, now);
         }
         self.ask_safety_mask(now);
     }
