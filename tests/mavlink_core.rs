@@ -4,6 +4,7 @@ mod mavlink_support;
 
 use lj9da_bridge::bus::Goal;
 use lj9da_bridge::config::Config;
+use lj9da_bridge::mavlink::core::{NO_STATUS_AFTER, sys_status};
 use lj9da_bridge::mavlink::{BridgeCore, Outgoing};
 use lj9da_bridge::protocol::MmCenti;
 use mavlink::MavHeader;
@@ -253,6 +254,7 @@ type Answered = (
 
 fn answer_every_request(c: &mut BridgeCore, t0: Instant, result: MavResult) -> Answered {
     c.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
+    c.handle_message(0, &header(AP), &sys_status(false), t0);
     let (mut requests, mut notes, mut texts) = (Vec::new(), Vec::new(), Vec::new());
     for ms in (0..10_000).step_by(100) {
         let t = t0 + Duration::from_millis(ms);
@@ -777,21 +779,6 @@ fn the_autopilots_clock_is_kept_for_the_record_once_a_second_and_never_from_a_ze
     assert_eq!(c.poll_autopilot_clock(), None);
 }
 
-/// ArduPilot's SYS_STATUS: motor outputs present, and enabled unless its safety switch is on.
-fn sys_status(safety_on: bool) -> MavMessage {
-    let outputs = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS;
-    MavMessage::SYS_STATUS(SYS_STATUS_DATA {
-        onboard_control_sensors_present: outputs
-            | MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_3D_GYRO,
-        onboard_control_sensors_enabled: if safety_on {
-            MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_3D_GYRO
-        } else {
-            outputs | MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_3D_GYRO
-        },
-        ..Default::default()
-    })
-}
-
 /// The autopilot's PARAM_VALUE of BRD_SAFETY_MASK (ArduPilot sends integers as their value).
 fn safety_mask(mask: u32) -> MavMessage {
     let mut id = [0u8; 16];
@@ -925,4 +912,38 @@ fn a_mapping_may_switch_the_servos_off_while_the_safety_is_on() {
     c.handle_message(0, &header(AP), &sys_status(false), t1);
     c.handle_message(0, &header(AP), &outputs(0, &[(1, 1850), (9, 1100)]), t1);
     assert_eq!(positions(&commands(&mut c)), vec![0]);
+}
+
+#[test]
+fn an_ardupilot_that_sends_no_sys_status_is_told_of_once() {
+    let t0 = Instant::now();
+    let warned = |c: &mut BridgeCore| {
+        c.take_notes()
+            .iter()
+            .filter(|n| n.contains("no SYS_STATUS") && n.contains("MAVn_EXT_STAT"))
+            .count()
+    };
+    let mut c = core(t0);
+    c.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
+    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), t0);
+    let just_before = t0 + NO_STATUS_AFTER - Duration::from_millis(1);
+    c.handle_timeout(just_before, &[]);
+    assert_eq!(warned(&mut c), 0);
+    for s in [0, 1, 7] {
+        c.handle_timeout(t0 + NO_STATUS_AFTER + Duration::from_secs(s), &[]);
+    }
+    assert_eq!(warned(&mut c), 1, "said once");
+    // A SYS_STATUS in time, and nothing is said; PX4 sends none for this.
+    let mut c = running(t0);
+    c.handle_timeout(t0 + 3 * NO_STATUS_AFTER, &[]);
+    assert_eq!(warned(&mut c), 0);
+    let mut c = core(t0);
+    let px4 = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        mavtype: MavType::MAV_TYPE_FIXED_WING,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+        ..Default::default()
+    });
+    c.handle_message(0, &header(AP), &px4, t0);
+    c.handle_timeout(t0 + 3 * NO_STATUS_AFTER, &[]);
+    assert_eq!(warned(&mut c), 0);
 }

@@ -808,6 +808,22 @@ async fn px4_airplane_set_up_as_the_page_says() {
     .unwrap();
     let (chain, cfg) = px4_bridge(&text, &tap).await;
 
+    // Disarmed, PX4 outputs its disarmed value (900 µs: no output) however the sticks move:
+    // no servo moves.
+    let disarmed = chain.sims[0].handle().subscribe();
+    let disarmed_from = Instant::now();
+    manual_sticks(&mut gcs, 2.0, true).await;
+    let heard = tap.outputs_since(disarmed_from);
+    let moved: Vec<_> = long_packets(&disarmed)
+        .into_iter()
+        .filter(|(_, goals)| !goals.is_empty())
+        .collect();
+    assert!(
+        heard.len() > 20 && moved.is_empty(),
+        "disarmed: {} outputs from PX4, servos moved: {moved:?}",
+        heard.len()
+    );
+
     // Armed in Manual, the sticks move the surfaces, DO_SET_ACTUATOR the gear door; every
     // goal follows PX4's outputs.
     manual_sticks(&mut gcs, 1.0, false).await;

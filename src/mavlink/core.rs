@@ -38,6 +38,7 @@
 
 mod commands;
 mod safety;
+pub use safety::{NO_STATUS_AFTER, sys_status};
 
 use super::commands::Command;
 use super::health::{BridgeEvent, ServoReport};
@@ -335,7 +336,8 @@ impl BridgeCore {
                 tracing::info!(system = from.0, component = from.1, "autopilot found");
             }
             if link == AUTOPILOT_LINK && Some(from) == self.autopilot {
-                self.safety_heartbeat(hb.autopilot == MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA);
+                let ardupilot = hb.autopilot == MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA;
+                self.safety_heartbeat(ardupilot, now);
             }
             if link == AUTOPILOT_LINK
                 && Some(from) == self.autopilot
@@ -614,6 +616,7 @@ impl BridgeCore {
     /// Time has come (see [`BridgeCore::poll_timeout`]): failsafe, stream requests, telemetry.
     pub fn handle_timeout(&mut self, now: Instant, reports: &[ServoReport]) {
         self.check_failsafe(now);
+        self.check_safety_status(now);
         if self.last_output_at.is_some() {
             let fastest = self.rate.roll(self.requested_rate_hz, now);
             self.judge_rate(fastest);

@@ -1,7 +1,8 @@
 //! A simulated autopilot for the default run and the tests: it speaks MAVLink over a real
 //! socket like ArduPilot Plane does, so the bridge cannot tell it from the real thing on the
 //! points that matter:
-//! - HEARTBEAT at 1 Hz from component 1 (fixed wing, ArduPilot);
+//! - HEARTBEAT at 1 Hz from component 1 (fixed wing, ArduPilot), and SYS_STATUS with it (the
+//!   safety switch off, as Plane's EXTENDED_STATUS stream sends at 1 Hz);
 //! - SERVO_OUTPUT_RAW for channels 1–16 (port 0) at a low default rate (4 Hz, as Plane's
 //!   RC_CHAN stream group in SITL) until MAV_CMD_SET_MESSAGE_INTERVAL asks for more;
 //! - a requested rate above 0.8 × the loop rate is DENIED, as ArduPilot does;
@@ -224,8 +225,10 @@ pub async fn run(
                 system_status: MavState::MAV_STATE_ACTIVE,
                 mavlink_version: 3,
             });
-            if let Err(e) = conn.send(&header, &hb).await {
-                tracing::debug!("simulated autopilot: {e}");
+            for message in [hb, crate::mavlink::core::sys_status(false)] {
+                if let Err(e) = conn.send(&header, &message).await {
+                    tracing::debug!("simulated autopilot: {e}");
+                }
             }
         }
         if now >= next_output {

@@ -2,6 +2,7 @@
 //! crate's `udpout` to the bridge's autopilot link on a real UDP socket, sending what the test
 //! says when it says it, or a stream of HEARTBEAT and outputs at a rate.
 
+use lj9da_bridge::mavlink::core::sys_status;
 use lj9da_bridge::mavlink::outputs::servo_output_raw;
 use mavlink::dialects::common::{HEARTBEAT_DATA, MavAutopilot, MavMessage, MavType};
 use mavlink::{AsyncConnection, AsyncMavConnection, MavHeader, MavlinkVersion};
@@ -122,6 +123,10 @@ impl Autopilot {
         self.outputs = Some(tx);
         let (c, p, n) = (self.conn.clone(), self.paused.clone(), self.sent.clone());
         let (header, heartbeat) = (self.header, self.heartbeat.clone());
+        // ArduPilot sends SYS_STATUS (EXTENDED_STATUS, 1 Hz) beside its HEARTBEAT: the bridge
+        // reads its safety switch there.
+        let ardupilot = matches!(&heartbeat, MavMessage::HEARTBEAT(hb)
+            if hb.autopilot == MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA);
         let sender = tokio::spawn(async move {
             let mut tick = tokio::time::interval(Duration::from_secs(1) / hz);
             tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
@@ -138,6 +143,9 @@ impl Autopilot {
                 if Instant::now() >= next_heartbeat {
                     next_heartbeat += Duration::from_secs(1);
                     let _ = c.send(&header, &heartbeat).await;
+                    if ardupilot {
+                        let _ = c.send(&header, &sys_status(false)).await;
+                    }
                 }
                 if !p.load(Ordering::SeqCst) {
                     let outputs = rx.borrow_and_update().clone();

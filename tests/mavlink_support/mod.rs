@@ -5,6 +5,7 @@
 
 use lj9da_bridge::bus::Goal;
 use lj9da_bridge::config::Config;
+use lj9da_bridge::mavlink::core::sys_status;
 use lj9da_bridge::mavlink::outputs::servo_output_raw;
 use lj9da_bridge::mavlink::{BridgeCore, Outgoing};
 use mavlink::MavHeader;
@@ -100,10 +101,12 @@ pub fn statustexts(out: &[Outgoing]) -> Vec<(MavSeverity, String)> {
         .collect()
 }
 
-/// A core that knows its autopilot and has had one output message.
+/// A core that knows its autopilot (ArduPilot, its safety switch off) and has had one output
+/// message.
 pub fn running(t0: Instant) -> BridgeCore {
     let mut c = core(t0);
     c.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
+    c.handle_message(0, &header(AP), &sys_status(false), t0);
     c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), t0);
     commands(&mut c);
     c

@@ -26,6 +26,26 @@ pub const SAFETY_MASK_PARAM: &str = "BRD_SAFETY_MASK";
 /// How often the mask is asked for while it is not known.
 const ASK_AGAIN: Duration = Duration::from_secs(1);
 
+/// How long an ArduPilot autopilot may go without a SYS_STATUS before the user is told that
+/// its safety switch cannot be seen: five periods of its default 1 Hz.
+pub const NO_STATUS_AFTER: Duration = Duration::from_secs(5);
+
+/// An ArduPilot autopilot's SYS_STATUS as the bridge reads it: its motor outputs present, and
+/// enabled unless its safety switch is on (the other sensors' bits are left out).
+pub fn sys_status(safety_on: bool) -> MavMessage {
+    let outputs = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS;
+    MavMessage::SYS_STATUS(SYS_STATUS_DATA {
+        onboard_control_sensors_present: outputs,
+        onboard_control_sensors_enabled: if safety_on {
+            MavSysStatusSensor::empty()
+        } else {
+            outputs
+        },
+        onboard_control_sensors_health: outputs,
+        ..Default::default()
+    })
+}
+
 /// What the bridge knows of the autopilot's safety switch.
 #[derive(Debug, Default)]
 pub(super) struct Safety {
@@ -36,6 +56,12 @@ pub(super) struct Safety {
     /// `BRD_SAFETY_MASK`, once read: bit n-1 is output n.
     mask: Option<u32>,
     asked_at: Option<Instant>,
+    /// When its first HEARTBEAT came, until its first SYS_STATUS has (then `None`).
+    unseen_since: Option<Instant>,
+    /// Its SYS_STATUS has come at least once.
+    status_heard: bool,
+    /// The user was told that no SYS_STATUS comes.
+    told: bool,
 }
 
 impl Safety {
@@ -58,10 +84,33 @@ impl Safety {
 
 impl BridgeCore {
     /// The autopilot's HEARTBEAT: which autopilot it is.
-    pub(super) fn safety_heartbeat(&mut self, ardupilot: bool) {
+    pub(super) fn safety_heartbeat(&mut self, ardupilot: bool, now: Instant) {
         self.safety.ardupilot = ardupilot;
         if !ardupilot {
             self.safety.on = false;
+        } else if !self.safety.status_heard && self.safety.unseen_since.is_none() {
+            self.safety.unseen_since = Some(now);
+        }
+    }
+
+    /// An ArduPilot autopilot that sends the bridge no SYS_STATUS: its safety switch cannot be
+    /// seen, and the servos follow the outputs whatever it says. Said once, as a warning.
+    pub(super) fn check_safety_status(&mut self, now: Instant) {
+        let s = &mut self.safety;
+        if !s.ardupilot || s.status_heard || s.told {
+            return;
+        }
+        if s.unseen_since
+            .is_some_and(|at| now.saturating_duration_since(at) >= NO_STATUS_AFTER)
+        {
+            s.told = true;
+            self.notes.push(format!(
+                "no SYS_STATUS from the autopilot in {} s: the bridge cannot see ArduPilot's safety \
+                 switch, and the servos follow its outputs whatever the switch says. Stream \
+                 EXTENDED_STATUS to the bridge's port at 1 Hz or more (MAVn_EXT_STAT, SRn_EXT_STAT \
+                 before 4.7)",
+                NO_STATUS_AFTER.as_secs()
+            ));
         }
     }
 
@@ -76,6 +125,8 @@ impl BridgeCore {
         if link != AUTOPILOT_LINK || Some(from) != self.autopilot || !self.safety.ardupilot {
             return;
         }
+        self.safety.status_heard = true;
+        self.safety.unseen_since = None;
         let outputs = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS;
         let on = s.onboard_control_sensors_present.contains(outputs)
             && !s.onboard_control_sensors_enabled.contains(outputs);
