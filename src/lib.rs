@@ -2,6 +2,7 @@
 //!
 //! Layers, bottom up:
 //! - [`protocol`]: the LJ9DA41 RS485 protocol as pure data (no I/O, no clock).
+//! - [`dronecan`]: DroneCAN (UAVCAN v0) frames, transfers and data types as pure data.
 //! - [`bus`]: the sans-IO bus master that schedules commands and telemetry on one RS485 bus,
 //!   and the thin tokio driver that runs it over a serial port.
 //! - [`config`]: mapping files (TOML) and the autopilot-output → servo-position mapping.
@@ -16,6 +17,7 @@ pub mod bus;
 pub mod commission;
 pub mod config;
 pub mod deploy;
+pub mod dronecan;
 #[doc(hidden)]
 pub mod fuzz_targets;
 pub mod mavlink;

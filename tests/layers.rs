@@ -14,8 +14,9 @@ use std::path::{Path, PathBuf};
 use syn::visit::Visit;
 
 /// Bottom first. A module may use those before it, never those after it.
-const LAYERS: [&str; 12] = [
+const LAYERS: [&str; 13] = [
     "protocol",
+    "dronecan",
     "serial",
     "bus",
     "config",

@@ -6,6 +6,8 @@
 //!   third-party autopilot or ground station; `$LJ9DA_PYTHON` if set;
 //! - [`data_python`]: the field's flight-data readers, [`DATA_PACKAGES`]: pyulog (PX4's ULog
 //!   reader), DuckDB and pyarrow;
+//! - [`dronecan_python`]: the `dronecan` package ([`DRONECAN`]), DroneCAN's reference Python
+//!   implementation, as a third-party node;
 //! - [`spark_python`]: PySpark, for the fleet bench only.
 //!
 //! Tests of one binary run on threads and the binaries of a workspace may run side by side, so
@@ -38,6 +40,9 @@ pub const DATA_PACKAGES: [&str; 4] = [
     "pyarrow==26.0.1",
 ];
 
+/// The DroneCAN implementation the tests install (pure Python, nothing else needed).
+pub const DRONECAN: &str = "dronecan==1.0.27";
+
 /// Spark for the fleet bench, with what it needs: Java comes from Debian
 /// (`openjdk-17-jre-headless`).
 pub const SPARK_PACKAGES: [&str; 2] = ["pyspark==4.3.0", "py4j==0.10.9.9"];
@@ -68,6 +73,14 @@ pub fn data_python() -> PathBuf {
         )
     })
     .clone()
+}
+
+/// The Python with `dronecan` ([`DRONECAN`]), made on first use.
+#[allow(dead_code)]
+pub fn dronecan_python() -> PathBuf {
+    static MADE: OnceLock<PathBuf> = OnceLock::new();
+    MADE.get_or_init(|| make_venv("dronecan-venv", &[DRONECAN], "import dronecan"))
+        .clone()
 }
 
 /// The Python with PySpark ([`SPARK_PACKAGES`]), made on first use: the fleet bench's, not
