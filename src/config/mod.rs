@@ -23,6 +23,8 @@
 //! | | `esc_info_hz`, `esc_status_hz` | 1, 1 | the rates of ESC_INFO and ESC_STATUS |
 //! | | `esc_index_base` | 16 | the ESC index of the first servo (clear of motor ESCs) |
 //! | | `named_value_float`, `esc`, `statustext`, `servo_state` | true | which carriers are sent |
+//! | `[record]` | `aircraft` | the host name | the aircraft's name in every record file (one baseline per name) |
+//! | | `enabled`, `dir`, `max_total_mb` | true, `records/` beside the mapping, 512 | the flight record, its folder, its disk budget |
 //! | `[bridge]` | `on_exit` | `"hold"` | `"hold"`, `"off"` or `"brake"` when the bridge stops |
 //! | | `while_safe` | `"hold"` | `"hold"`, `"off"` or `"brake"` for a servo off ArduPilot's `BRD_SAFETY_MASK` while its safety switch is on |
 //! | `[[bus]]` | `name`, `port` | (required) | the bus's name and serial port |

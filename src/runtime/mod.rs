@@ -205,8 +205,19 @@ fn spawn_mapping_writer(
 fn start_record(cfg: &Config, dir: &std::path::Path) -> Option<RecordHandle> {
     let servos = RecordServo::from_config(cfg);
     let limits = RecordLimits::with_total(cfg.record.max_total_bytes());
+    let aircraft = cfg.record.aircraft.clone().or_else(host_name);
+    if cfg.record.aircraft.is_none()
+        && let Some(name) = aircraft.as_deref().filter(|n| is_image_default(n))
+    {
+        tracing::warn!(
+            "the flight record names this aircraft {name:?}, the host name its system image gives \
+             every computer: a fleet's records would be taken for one aircraft's (`record trend`, \
+             the fleet's SQL). Set [record] aircraft in the mapping, or give the computer a host \
+             name of its own"
+        );
+    }
     let options = RecorderOptions {
-        aircraft: cfg.record.aircraft.clone().or_else(host_name),
+        aircraft,
         ..RecorderOptions::default()
     };
     match Recorder::start_with(dir, &servos, limits, options) {
@@ -222,6 +233,31 @@ fn start_record(cfg: &Config, dir: &std::path::Path) -> Option<RecordHandle> {
             None
         }
     }
+}
+
+/// Host names that system images give every computer they are written to (Raspberry Pi OS,
+/// Debian's and Ubuntu's images, the common single-board computers' own): as an aircraft's
+/// name they would make a fleet one aircraft.
+const IMAGE_HOST_NAMES: [&str; 12] = [
+    "raspberrypi",
+    "debian",
+    "ubuntu",
+    "localhost",
+    "orangepi",
+    "nanopi",
+    "rockpi",
+    "radxa",
+    "odroid",
+    "beaglebone",
+    "tegra-ubuntu",
+    "jetson",
+];
+
+/// Whether `name` is a host name an image gives every computer ([`IMAGE_HOST_NAMES`], any
+/// case, with or without a domain).
+fn is_image_default(name: &str) -> bool {
+    let short = name.split('.').next().unwrap_or(name).to_ascii_lowercase();
+    IMAGE_HOST_NAMES.contains(&short.as_str())
 }
 
 /// The computer's host name, the aircraft's name when the mapping gives none.

@@ -133,3 +133,19 @@ fn the_mapping_writer_makes_changes_in_order_and_refuses_without_a_file() {
     assert!(results[1].1.is_err(), "{results:?}");
     assert_eq!(results[2], (1510.0, Ok(1510)));
 }
+
+#[test]
+fn an_image_s_own_host_name_is_not_taken_for_an_aircraft_s() {
+    for name in [
+        "raspberrypi",
+        "RaspberryPi",
+        "raspberrypi.local",
+        "debian",
+        "tegra-ubuntu",
+    ] {
+        assert!(is_image_default(name), "{name}");
+    }
+    for name in ["wing-07", "raspberrypi-07", "plane", ""] {
+        assert!(!is_image_default(name), "{name}");
+    }
+}
