@@ -526,3 +526,65 @@ async fn at_the_production_allowance_the_line_is_kept_and_the_servos_follow() {
     assert!(chain.autopilot.outputs_sent() > 100);
     chain.stop().await;
 }
+
+/// The first goal time of servo 1 in the long packets of `events` (10 ms units), if one came.
+fn first_goal_time(events: &std::sync::mpsc::Receiver<lj9da_sim::BusEvent>) -> Option<u16> {
+    use lj9da_sim::protocol::host_packet::HostPacket;
+    const GOAL_TIME: usize = 0x20;
+    events.try_iter().find_map(|e| match e {
+        lj9da_sim::BusEvent::Packet(p) if matches!(p.packet, HostPacket::Long(_)) => {
+            let offset = GOAL_TIME.checked_sub(usize::from(p.packet.address()))?;
+            p.packet
+                .writes()
+                .into_iter()
+                .filter(|(id, _)| *id == 1)
+                .find_map(|(_, data)| {
+                    Some(u16::from_le_bytes([
+                        *data.get(offset)?,
+                        *data.get(offset + 1)?,
+                    ]))
+                })
+        }
+        _ => None,
+    })
+}
+
+/// The mapping's soft start reaches the bus: the servo's first move carries the goal time its
+/// distance takes at the bus's `soft_start_mm_s` (10 mm/s when the key is left out).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_first_move_takes_the_time_of_the_buss_soft_start_speed() {
+    for speed in [None, Some(50.0f32)] {
+        let mut mapping = Mapping::new().servo("aileron", 1, 1);
+        if let Some(s) = speed {
+            mapping = mapping.with("[[bus]]", &format!("soft_start_mm_s = {s}"));
+        }
+        let chain = Chain::start(mapping, false).await;
+        let sim = chain.sims[0].handle();
+        chain
+            .wait_view("the servo online", SECS(10), |v| {
+                !v.servos.is_empty() && v.servos.iter().all(|s| s.report.position_mm.is_some())
+            })
+            .await;
+        let from_mm = sim.snapshot(1).unwrap().position_mm;
+        let events = sim.subscribe();
+        let ap = Autopilot::connect(chain.autopilot_port).await;
+        // 1760 µs: +10 mm, with the autopilot's HEARTBEAT until the bridge acts on it.
+        let deadline = std::time::Instant::now() + SECS(10);
+        let goal_time = loop {
+            ap.heartbeat().await;
+            ap.send(&outputs(&[1760])).await;
+            tokio::time::sleep(Duration::from_millis(20)).await;
+            if let Some(t) = first_goal_time(&events) {
+                break t;
+            }
+            assert!(std::time::Instant::now() < deadline, "no long packet");
+        };
+        let mm_s = speed.unwrap_or(10.0);
+        let expected = (10.0 - from_mm).abs() / mm_s * 100.0;
+        assert!(
+            (f32::from(goal_time) - expected).abs() <= 1.0,
+            "{speed:?}: goal time {goal_time} × 10 ms from {from_mm} mm, expected {expected:.1}"
+        );
+        chain.stop().await;
+    }
+}

@@ -615,6 +615,18 @@ fn bus_values_are_checked() {
         "turnaround_ms",
         "-1 ms is outside 0–100 ms",
     );
+    for speed in ["0.0", "200.0", "nan"] {
+        let text = with(
+            "baud = 115200",
+            &format!("baud = 115200\nsoft_start_mm_s = {speed}"),
+        );
+        refused(
+            &text,
+            "soft_start_mm_s",
+            "soft_start_mm_s",
+            "mm/s is outside 1–105 mm/s (the servo's top speed); the soft start cannot be switched off",
+        );
+    }
     let text = with("port = \"/dev/ttyUSB0\"", "port = \"\"");
     refused(&text, "port = \"\"", "port", "the serial port is empty");
     let text = with("name = \"wing\"", "name = \"left wing\"");

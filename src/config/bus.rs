@@ -67,7 +67,20 @@ pub struct BusSection {
     /// The kernel's RS485 mode for the port (`rs485 = { … }`), for a UART whose transceiver's
     /// driver enable is on RTS; `None`: the port's RS485 setting is left as it is.
     pub rs485: Option<Rs485Mode>,
+    /// The speed of the bridge's first move of a servo whose force it switches on (its first
+    /// goal, and the first after force off or brake), in mm/s: the soft start. Default
+    /// [`SOFT_START_DEFAULT_MM_S`].
+    pub soft_start_mm_s: f64,
 }
+
+/// The soft start's default speed: a full 50 mm move in 5 s, half of one in 2.5 s.
+pub const SOFT_START_DEFAULT_MM_S: f64 = crate::bus::BusConfig::DEFAULT_SOFT_START_SPEED_MM_S;
+
+/// The servo's top speed (no load, 14.8 V): a soft start no faster than that.
+pub const SOFT_START_MAX_MM_S: f64 = 105.0;
+
+/// The slowest soft start accepted: a full move in 50 s.
+pub const SOFT_START_MIN_MM_S: f64 = 1.0;
 
 /// A bus or servo name: 1–32 ASCII letters, digits, `_` or `-`.
 pub(crate) fn check_name(name: &str) -> Result<(), String> {
@@ -144,6 +157,26 @@ impl BusSection {
             None => None,
             Some(r) => Some(rs485_mode(r.get_ref(), turnaround_ms, scope)?),
         };
+        let soft_start_mm_s = match &raw.soft_start_mm_s {
+            None => SOFT_START_DEFAULT_MM_S,
+            Some(v) => {
+                let speed = *v.get_ref();
+                if !(speed.is_finite()
+                    && (SOFT_START_MIN_MM_S..=SOFT_START_MAX_MM_S).contains(&speed))
+                {
+                    return Err(scope.error_on(
+                        v,
+                        "soft_start_mm_s",
+                        format!(
+                            "{speed} mm/s is outside {SOFT_START_MIN_MM_S}–{SOFT_START_MAX_MM_S} \
+                             mm/s (the servo's top speed); the soft start cannot be switched off: \
+                             without it a servo jumps to its first goal at full speed"
+                        ),
+                    ));
+                }
+                speed
+            }
+        };
         Ok(BusSection {
             name: raw.name.get_ref().clone(),
             port: PathBuf::from(port),
@@ -151,6 +184,7 @@ impl BusSection {
             turnaround_ms,
             telemetry,
             rs485,
+            soft_start_mm_s,
         })
     }
 }

@@ -30,6 +30,7 @@
 //! | `[[bus]]` | `name`, `port` | (required) | the bus's name and serial port |
 //! | | `baud` | 115200 | one of the servo's rates, 9600 … 460800 |
 //! | | `turnaround_ms` | bus master's own | extra reply allowance (return delay + adapter latency) |
+//! | | `soft_start_mm_s` | 10 | speed of the first move after the bridge switches a servo's force on, 1–105 mm/s |
 //! | | `telemetry_hz` | 50 | reads of position and current per servo per second, or `"max"` (every free moment) |
 //! | | `rs485` | none (the port's setting is left alone) | `{ rts_on_send, rts_after_send, delay_before_send_ms, delay_after_send_ms, rx_during_tx }`: the kernel's RS485 mode for a UART whose transceiver's driver enable is on RTS (see `docs/rs485.md`) |
 //! | `[[servo]]` | `name`, `bus`, `id`, `channel` | (required) | name, bus, ID 1–127, output 1–32 |
@@ -391,6 +392,7 @@ mod tests {
         assert_eq!(c.bridge.on_exit, ForceAction::Hold);
         assert_eq!(c.buses[0].baud, BaudRate::B115200);
         assert_eq!(c.buses[0].turnaround_ms, None);
+        assert_eq!(c.buses[0].soft_start_mm_s, 10.0);
         let s = &c.servos[0];
         assert_eq!(s.label, "s1");
         assert_eq!(s.channel, 5);

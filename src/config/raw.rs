@@ -74,6 +74,7 @@ pub(crate) struct RawBus {
     pub port: Spanned<String>,
     pub baud: Option<Spanned<i64>>,
     pub turnaround_ms: Option<Spanned<f64>>,
+    pub soft_start_mm_s: Option<Spanned<f64>>,
     pub telemetry_hz: Option<Spanned<RawRate>>,
     pub rs485: Option<Spanned<RawRs485>>,
 }

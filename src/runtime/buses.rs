@@ -49,6 +49,7 @@ impl Buses {
                 bus_cfg.turnaround = std::time::Duration::from_secs_f32(ms / 1000.0);
             }
             bus_cfg.telemetry_min_interval = bus.telemetry.min_interval();
+            bus_cfg.soft_start_speed_mm_s = bus.soft_start_mm_s;
             if let Some(w) = crate::config::warnings::telemetry_beyond_wire(cfg, bus) {
                 tracing::warn!("{}", w.trim_start_matches("warning: "));
             }
