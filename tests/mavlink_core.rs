@@ -11,7 +11,7 @@ use mavlink::MavHeader;
 use mavlink::dialects::common::*;
 use mavlink_support::{
     AP, MAPPING, acks, autopilot_heartbeat, command_long, commands, core, header, messages,
-    outputs, running, statustexts,
+    outputs, running, running_on, statustexts,
 };
 use std::time::{Duration, Instant};
 
@@ -887,10 +887,7 @@ fn the_safety_switch_holds_a_failsafe_position_and_do_set_servo_too() {
 fn a_mapping_may_switch_the_servos_off_while_the_safety_is_on() {
     let t0 = Instant::now();
     let mapping = format!("{MAPPING}\n[bridge]\nwhile_safe = \"off\"\n");
-    let mut c = BridgeCore::new(Config::parse(&mapping, "test.toml").unwrap(), t0);
-    c.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
-    c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), t0);
-    commands(&mut c);
+    let mut c = running_on(&mapping, t0);
     c.handle_message(0, &header(AP), &sys_status(true), t0);
     c.handle_message(0, &header(AP), &safety_mask(1 << 8), t0);
     let out = messages(&mut c);

@@ -104,7 +104,12 @@ pub fn statustexts(out: &[Outgoing]) -> Vec<(MavSeverity, String)> {
 /// A core that knows its autopilot (ArduPilot, its safety switch off) and has had one output
 /// message.
 pub fn running(t0: Instant) -> BridgeCore {
-    let mut c = core(t0);
+    running_on(MAPPING, t0)
+}
+
+/// [`running`], on the mapping `text`.
+pub fn running_on(text: &str, t0: Instant) -> BridgeCore {
+    let mut c = BridgeCore::new(Config::parse(text, "test.toml").expect("valid"), t0);
     c.handle_message(0, &header(AP), &autopilot_heartbeat(), t0);
     c.handle_message(0, &header(AP), &sys_status(false), t0);
     c.handle_message(0, &header(AP), &outputs(0, &[(1, 1520)]), t0);
