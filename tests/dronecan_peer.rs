@@ -10,11 +10,12 @@ use lj9da_bridge::dronecan::messages::{
     self, ACTUATOR_STATUS, ARRAY_COMMAND, ActuatorStatus, Command, CommandType, DataType,
     GET_NODE_INFO, Health, Mode, NODE_STATUS, NodeInfo, NodeStatus,
 };
+use lj9da_bridge::dronecan::node::{Identity, Node};
 use lj9da_bridge::dronecan::{CanFrame, CanId, Kind, Reassembler, Transfer};
 use serde_json::{Value, json};
 use std::io::Write;
 use std::process::{Command as Process, Stdio};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// Reads one JSON request from stdin: `types` (names whose id and signature it prints),
 /// `decode` (transfers as lists of [id, hex] frames, each decoded to its fields) and `encode`
@@ -69,6 +70,11 @@ status_ = a.Status(actuator_id=4, position=-0.02, force=3.5, speed=0.125, power_
 for payload, node in [(array, 10), (status_, 42)]:
     t = Transfer(payload=payload, source_node_id=node, transfer_id=17, transfer_priority=16)
     out["encoded"].append([[f.message_id, bytes(f.bytes).hex()] for f in t.to_frames()])
+# A ground station's GetNodeInfo request from node 10 to node 42.
+ask = Transfer(payload=dronecan.uavcan.protocol.GetNodeInfo.Request(), source_node_id=10,
+               dest_node_id=42, service_not_message=True, request_not_response=True,
+               transfer_id=23, transfer_priority=30)
+out["encoded"].append([[f.message_id, bytes(f.bytes).hex()] for f in ask.to_frames()])
 json.dump(out, sys.stdout)
 "#;
 
@@ -315,4 +321,74 @@ fn the_bridges_frames_and_dronecans_agree_both_ways() {
         (s.position + 0.02).abs() < 1e-4 && s.force == 3.5 && s.speed == 0.125,
         "{s:?}"
     );
+}
+
+fn frames_of(encoded: &Value) -> Vec<CanFrame> {
+    encoded
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| {
+            CanFrame::new(
+                f[0].as_u64().unwrap() as u32,
+                &unhex(f[1].as_str().unwrap()),
+            )
+            .unwrap()
+        })
+        .collect()
+}
+
+#[test]
+fn dronecan_commands_the_node_asks_who_it_is_and_hears_its_status() {
+    let got = peer(json!({"types": [], "decode": []}));
+    let encoded = got["encoded"].as_array().unwrap();
+    let t0 = Instant::now();
+    let mut node = Node::new(
+        Identity {
+            node_id: 42,
+            name: "org.lj9da.bridge".into(),
+            software_major: 0,
+            software_minor: 1,
+            vcs_commit: Some(0x1234_5678),
+            unique_id: *b"0123456789abcdef",
+        },
+        t0,
+    );
+    node.set_health(Health::Warning, 0x0004);
+    // dronecan's ArrayCommand from node 10: its eight commands.
+    let received: Vec<_> = frames_of(&encoded[0])
+        .iter()
+        .filter_map(|f| node.handle_frame(f, t0))
+        .collect();
+    assert_eq!(received.len(), 1);
+    assert_eq!(received[0].source, 10);
+    assert_eq!(received[0].commands.len(), 8);
+    // Its GetNodeInfo request: answered, then the NodeStatus that is due.
+    for f in frames_of(&encoded[2]) {
+        assert_eq!(node.handle_frame(&f, t0), None);
+    }
+    let response: Vec<CanFrame> = std::iter::from_fn(|| node.pop_frame()).collect();
+    node.poll(t0 + Duration::from_millis(2_300));
+    let status: Vec<CanFrame> = std::iter::from_fn(|| node.pop_frame()).collect();
+    assert!(
+        response.len() > 1 && !status.is_empty(),
+        "{response:?} {status:?}"
+    );
+    let back = peer(json!({
+        "types": [],
+        "decode": [frames_json(&response), frames_json(&status)],
+    }));
+    let info = &back["decoded"][0];
+    assert_eq!(
+        (info["source"].as_u64(), info["transfer_id"].as_u64()),
+        (Some(42), Some(23))
+    );
+    assert_eq!(info["fields"]["name"], json!("org.lj9da.bridge"));
+    assert_eq!(
+        info["fields"]["unique_id"],
+        json!(b"0123456789abcdef".to_vec())
+    );
+    assert_eq!(info["fields"]["software"], json!([0, 1, 1, 0x1234_5678]));
+    assert_eq!(info["fields"]["status"], json!([0, 1, 0, 0, 4]));
+    assert_eq!(back["decoded"][1]["fields"], json!([2, 1, 0, 0, 4]));
 }

@@ -10,6 +10,8 @@
 //! - [`messages`]: the data types the bridge speaks, each with its id and signature:
 //!   `uavcan.equipment.actuator.ArrayCommand` in, `uavcan.equipment.actuator.Status`,
 //!   `uavcan.protocol.NodeStatus` and `uavcan.protocol.GetNodeInfo` out.
+//! - [`node`]: a node on those: ArrayCommand's commands out of the frames, GetNodeInfo
+//!   answered, NodeStatus once a second, its transfers numbered.
 //!
 //! Written from the DroneCAN specification and checked against the `dronecan` package's own
 //! encoder and decoder (`tests/dronecan_peer.rs`). Uses nothing else of the crate.
@@ -19,6 +21,7 @@ pub mod crc;
 pub mod float16;
 pub mod frame;
 pub mod messages;
+pub mod node;
 pub mod transfer;
 
 pub use frame::{CanFrame, CanId, Kind};
