@@ -10,6 +10,8 @@
 //! - [`messages`]: the data types the bridge speaks, each with its id and signature:
 //!   `uavcan.equipment.actuator.ArrayCommand` in, `uavcan.equipment.actuator.Status`,
 //!   `uavcan.protocol.NodeStatus` and `uavcan.protocol.GetNodeInfo` out.
+//! - [`mcast`]: ArduPilot SITL's CAN bus over multicast UDP, a datagram per frame (the test
+//!   transport; SocketCAN is the aircraft's).
 //! - [`node`]: a node on those: ArrayCommand's commands out of the frames, GetNodeInfo
 //!   answered, NodeStatus once a second, its transfers numbered.
 //!
@@ -20,6 +22,7 @@ pub mod bits;
 pub mod crc;
 pub mod float16;
 pub mod frame;
+pub mod mcast;
 pub mod messages;
 pub mod node;
 pub mod transfer;
