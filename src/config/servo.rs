@@ -11,9 +11,22 @@ use super::bus::check_name;
 use super::error::{ConfigError, Scope};
 use super::mavlink::{Quantity, TelemetryConfig, quantities};
 use super::raw::RawServo;
+use crate::dronecan::messages::CommandType;
 use crate::protocol::{MmCenti, Ms10, Percent, PositionLimits, ServoId};
 use std::fmt;
 use toml::Spanned;
+
+/// What a DroneCAN command's unitless value (−1…+1) is to a servo.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum UnitlessLaw {
+    /// ArduPilot's: its output pulse `p` sent as `(p − 1000) / 500 − 1` (`AP_DroneCAN`'s
+    /// servo output), taken back to `1500 + 500 × value` µs and mapped as a pulse: a servo
+    /// moves as it does for the same output over MAVLink, within 1000–2000 µs.
+    #[default]
+    ArduPilotPulse,
+    /// Normalised: −1 ↔ −25.00 mm, +1 ↔ +25.00 mm, as [`ServoConfig::map_normalized`].
+    Normalized,
+}
 
 /// The longest label: NAMED_VALUE_FLOAT names hold 10 characters, and the bridge names each
 /// servo's values `<label>_<quantity>` with a three-letter quantity (`ail_l_pos`).
@@ -179,6 +192,46 @@ impl ServoConfig {
         let centi = (f64::from(v) * f64::from(MmCenti::STROKE_END)).round();
         // `v` is within −1…+1, so `centi` is within ±2500.
         Some(self.reverse_and_clamp(MmCenti(centi as i16)))
+    }
+
+    /// The position for a DroneCAN actuator command (`uavcan.equipment.actuator.Command`), or
+    /// `None` (leave it) for a value that is not a number and for the types a linear servo
+    /// has no use for (force, speed, unknown):
+    /// - PWM, µs (ArduPilot with `CAN_D1_UC_OPTION` "send servo as PWM"): as [`Self::map_pwm`],
+    ///   the MAVLink path's law exactly;
+    /// - unitless, −1…+1: as `unitless` says (ArduPilot's pulse, or normalised);
+    /// - position, metres: that rod position in mm, within ±25.00 mm, then reversed and
+    ///   clamped like the others.
+    pub fn map_can_command(
+        &self,
+        command_type: CommandType,
+        value: f32,
+        unitless: UnitlessLaw,
+    ) -> Option<MmCenti> {
+        if !value.is_finite() {
+            return None;
+        }
+        match command_type {
+            CommandType::Pwm => {
+                let us = value.round();
+                (0.0..=f32::from(u16::MAX))
+                    .contains(&us)
+                    .then(|| self.map_pwm(us as u16))?
+            }
+            CommandType::Unitless => match unitless {
+                UnitlessLaw::ArduPilotPulse => {
+                    let us = 1500.0 + 500.0 * value.clamp(-1.0, 1.0);
+                    self.map_pwm(us.round() as u16)
+                }
+                UnitlessLaw::Normalized => self.map_normalized(value.clamp(-1.0, 1.0)),
+            },
+            CommandType::Position => {
+                let end = f64::from(MmCenti::STROKE_END) / 100.0;
+                let mm = (f64::from(value) * 1000.0).clamp(-end, end);
+                MmCenti::from_mm(mm).ok().map(|p| self.reverse_and_clamp(p))
+            }
+            CommandType::Force | CommandType::Speed | CommandType::Other(_) => None,
+        }
     }
 
     fn reverse_and_clamp(&self, position: MmCenti) -> MmCenti {
@@ -627,5 +680,53 @@ mod tests {
             FailsafeAction::Position(MmCenti(-300)).to_string(),
             "-3.00 mm"
         );
+    }
+
+    #[test]
+    fn a_dronecan_command_moves_the_servo_as_the_same_output_over_mavlink() {
+        let s = servo();
+        let can = |t, v, law| s.map_can_command(t, v, law);
+        // PWM: the MAVLink path's law, no output included.
+        for us in (0..=2400u16).step_by(7).chain([u16::MAX]) {
+            assert_eq!(
+                can(CommandType::Pwm, f32::from(us), UnitlessLaw::ArduPilotPulse),
+                s.map_pwm(us),
+                "{us} µs"
+            );
+        }
+        // ArduPilot's unitless value of its pulse p, through the wire's float16: p again,
+        // within the half-µs float16 loses near the ends.
+        use crate::dronecan::float16;
+        for p in 1000..=2000u16 {
+            let sent = (f32::from(p) - 1000.0) / 500.0 - 1.0;
+            let wire = float16::to_f32(float16::from_f32(sent));
+            let got = can(CommandType::Unitless, wire, UnitlessLaw::ArduPilotPulse).unwrap();
+            let want = s.map_pwm(p).unwrap();
+            assert!((got.0 - want.0).abs() <= 5, "{p} µs: {got:?} for {want:?}");
+        }
+        let normalized = |v| can(CommandType::Unitless, v, UnitlessLaw::Normalized);
+        assert_eq!(normalized(1.0), Some(MmCenti(2500)));
+        assert_eq!(normalized(-0.5), Some(MmCenti(-1250)));
+        assert_eq!(normalized(3.0), Some(MmCenti(2500)));
+        // A position in metres: that many mm, within the stroke; reversed like the others.
+        let position = |s: &ServoConfig, m| {
+            s.map_can_command(CommandType::Position, m, UnitlessLaw::Normalized)
+        };
+        assert_eq!(position(&s, 0.0125), Some(MmCenti(1250)));
+        assert_eq!(position(&s, 0.1), Some(MmCenti(2500)));
+        let reversed = ServoConfig {
+            reverse: true,
+            ..servo()
+        };
+        assert_eq!(position(&reversed, 0.0125), Some(MmCenti(-1250)));
+        for (t, v) in [
+            (CommandType::Force, 1.0),
+            (CommandType::Speed, 1.0),
+            (CommandType::Other(9), 1.0),
+            (CommandType::Unitless, f32::NAN),
+            (CommandType::Pwm, -3.0),
+        ] {
+            assert_eq!(can(t, v, UnitlessLaw::ArduPilotPulse), None, "{t:?} {v}");
+        }
     }
 }
