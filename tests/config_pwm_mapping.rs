@@ -19,6 +19,7 @@ fn servo() -> ServoConfig {
         max_force_percent: None,
         failsafe: FailsafeAction::Hold,
         actuator: None,
+        dronecan_id: 1,
         named_values: None,
     }
 }

@@ -41,6 +41,27 @@ impl fmt::Display for ForceAction {
     }
 }
 
+/// Where the servos' goals come from: one source, never both.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum CommandSource {
+    /// The autopilot's MAVLink outputs (SERVO_OUTPUT_RAW or ACTUATOR_OUTPUT_STATUS) and
+    /// DO_SET_SERVO / DO_SET_ACTUATOR.
+    #[default]
+    Mavlink,
+    /// DroneCAN's `uavcan.equipment.actuator.ArrayCommand` (the `[dronecan]` table). MAVLink
+    /// still carries health and parameters, and moves nothing.
+    DroneCan,
+}
+
+impl fmt::Display for CommandSource {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            CommandSource::Mavlink => "mavlink",
+            CommandSource::DroneCan => "dronecan",
+        })
+    }
+}
+
 /// The `[bridge]` table.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct BridgeSection {
@@ -50,6 +71,8 @@ pub struct BridgeSection {
     /// (default hold: what an LJ9DA41 on the autopilot's own PWM output does when the safety
     /// stops its pulses).
     pub while_safe: ForceAction,
+    /// Where the goals come from (default MAVLink).
+    pub commands: CommandSource,
 }
 
 impl BridgeSection {
@@ -62,6 +85,23 @@ impl BridgeSection {
                 "an action for the safety switch",
                 scope,
             )?,
+            commands: match &raw.commands {
+                None => CommandSource::default(),
+                Some(v) => match v.get_ref().trim().to_ascii_lowercase().as_str() {
+                    "mavlink" => CommandSource::Mavlink,
+                    "dronecan" => CommandSource::DroneCan,
+                    other => {
+                        return Err(scope.error_on(
+                            v,
+                            "commands",
+                            format!(
+                                "\"{other}\" is not a source of the servos' goals; use \"mavlink\" \
+                                 or \"dronecan\""
+                            ),
+                        ));
+                    }
+                },
+            },
         })
     }
 }

@@ -27,6 +27,10 @@
 //! | | `enabled`, `dir`, `max_total_mb` | true, `records/` beside the mapping, 512 | the flight record, its folder, its disk budget |
 //! | `[bridge]` | `on_exit` | `"hold"` | `"hold"`, `"off"` or `"brake"` when the bridge stops |
 //! | | `while_safe` | `"hold"` | `"hold"`, `"off"` or `"brake"` for a servo off ArduPilot's `BRD_SAFETY_MASK` while its safety switch is on |
+//! | | `commands` | `"mavlink"` | where the goals come from: `"mavlink"` (outputs, DO_SET_SERVO) or `"dronecan"` (ArrayCommand; needs `[dronecan]`) |
+//! | `[dronecan]` | `interface`, `node_id` | (required) | `"can0"` (SocketCAN) or `"mcast:N"` (ArduPilot SITL's multicast CAN); the node's id, 1–125 |
+//! | | `unitless` | `"ardupilot"` | what an UNITLESS command means: ArduPilot's pulse, or `"normalized"` (±1 ↔ ±25 mm) |
+//! | | `status_hz` | 10 | each servo's actuator Status per second, 1–50 |
 //! | `[[bus]]` | `name`, `port` | (required) | the bus's name and serial port |
 //! | | `baud` | 115200 | one of the servo's rates, 9600 … 460800 |
 //! | | `turnaround_ms` | bus master's own | extra reply allowance (return delay + adapter latency) |
@@ -42,6 +46,7 @@
 //! | | `max_force_percent` | none (servo's own) | Max Force set at start, 1–100 |
 //! | | `failsafe` | `"hold"` | `"hold"`, `"off"`, `"brake"` or a position in mm |
 //! | | `actuator` | none | also follow MAV_CMD_DO_SET_ACTUATOR actuator 1–126 sent to the bridge |
+//! | | `dronecan_id` | `channel` | the ArrayCommand actuator id it follows, 0–255 (ArduPilot: the output's number; PX4: from 0) |
 //! | | `named_values` | `[telemetry]`'s | this servo's NAMED_VALUE_FLOAT quantities (`[]`: none), for more servos than a ground station shows names |
 //!
 //! Reading a file never panics: a garbled or impossible file is refused with a [`ConfigError`]
@@ -55,6 +60,7 @@
 
 pub mod bridge;
 pub mod bus;
+pub mod dronecan;
 pub mod edit;
 pub mod error;
 pub mod mavlink;
@@ -65,8 +71,9 @@ pub mod signing_key;
 mod table;
 pub mod warnings;
 
-pub use bridge::{BridgeSection, ForceAction};
+pub use bridge::{BridgeSection, CommandSource, ForceAction};
 pub use bus::{BusSection, TelemetryRate};
+pub use dronecan::{CanInterface, DroneCanConfig};
 pub use error::{ConfigError, Location};
 pub use mavlink::{MavlinkConfig, Quantity, Source, TelemetryConfig};
 pub use record::RecordSection;
@@ -91,6 +98,8 @@ pub struct Config {
     pub servos: Vec<ServoConfig>,
     pub bridge: BridgeSection,
     pub record: RecordSection,
+    /// The DroneCAN node, with the table; `None`: no node.
+    pub dronecan: Option<DroneCanConfig>,
 }
 
 impl Config {
@@ -209,6 +218,23 @@ impl Config {
             None => RecordSection::default(),
             Some(r) => RecordSection::from_raw(r.get_ref(), &doc.scope("[record]"))?,
         };
+        let dronecan = raw
+            .dronecan
+            .as_ref()
+            .map(|d| DroneCanConfig::from_raw(d.get_ref(), &doc.scope("[dronecan]")))
+            .transpose()?;
+        if bridge.commands == CommandSource::DroneCan && dronecan.is_none() {
+            let commands = raw
+                .bridge
+                .as_ref()
+                .and_then(|b| b.get_ref().commands.as_ref())
+                .expect("commands = \"dronecan\" was read from the [bridge] table");
+            return Err(doc.scope("[bridge]").error_on(
+                commands,
+                "commands",
+                "\"dronecan\" needs a [dronecan] table (interface, node_id) to hear the commands on",
+            ));
+        }
 
         let mut buses: Vec<BusSection> = Vec::with_capacity(raw.bus.len());
         for (index, spanned) in raw.bus.iter().enumerate() {
@@ -331,6 +357,7 @@ impl Config {
             servos,
             bridge,
             record,
+            dronecan,
         })
     }
 }

@@ -13,6 +13,7 @@ pub(crate) struct RawFile {
     pub telemetry: Option<Spanned<RawTelemetry>>,
     pub bridge: Option<Spanned<RawBridge>>,
     pub record: Option<Spanned<RawRecord>>,
+    pub dronecan: Option<Spanned<RawDroneCan>>,
     #[serde(default)]
     pub bus: Vec<Spanned<RawBus>>,
     #[serde(default)]
@@ -56,6 +57,16 @@ pub(crate) struct RawTelemetry {
 pub(crate) struct RawBridge {
     pub on_exit: Option<Spanned<String>>,
     pub while_safe: Option<Spanned<String>>,
+    pub commands: Option<Spanned<String>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawDroneCan {
+    pub interface: Spanned<String>,
+    pub node_id: Spanned<i64>,
+    pub unitless: Option<Spanned<String>>,
+    pub status_hz: Option<Spanned<f64>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -117,5 +128,6 @@ pub(crate) struct RawServo {
     pub max_force_percent: Option<Spanned<i64>>,
     pub failsafe: Option<Spanned<toml::Value>>,
     pub actuator: Option<Spanned<i64>>,
+    pub dronecan_id: Option<Spanned<i64>>,
     pub named_values: Option<Spanned<Vec<Spanned<String>>>>,
 }

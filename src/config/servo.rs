@@ -161,6 +161,10 @@ pub struct ServoConfig {
     /// actuator n is param ((n − 1) mod 6) + 1 of the command whose param 7 (index) is
     /// (n − 1) div 6, so actuators 1–6 are params 1–6 of index 0. See [`Self::map_normalized`].
     pub actuator: Option<u8>,
+    /// The actuator id of DroneCAN's ArrayCommand it follows (with `[dronecan]`), 0–255;
+    /// default its channel, as ArduPilot numbers them (`SERVOn` is actuator n). PX4 numbers
+    /// from 0: channel − 1.
+    pub dronecan_id: u8,
     /// The quantities its NAMED_VALUE_FLOATs carry; `None`: `[telemetry] named_values`.
     pub named_values: Option<Vec<Quantity>>,
 }
@@ -365,6 +369,20 @@ impl ServoConfig {
             ),
         };
 
+        let dronecan_id = match &raw.dronecan_id {
+            None => channel,
+            Some(a) => u8::try_from(*a.get_ref()).map_err(|_| {
+                scope.error_on(
+                    a,
+                    "dronecan_id",
+                    format!(
+                        "{} is outside 0–255 (ArrayCommand's actuator_id is one byte)",
+                        a.get_ref()
+                    ),
+                )
+            })?,
+        };
+
         let named_values = raw
             .named_values
             .as_ref()
@@ -384,6 +402,7 @@ impl ServoConfig {
             max_force_percent,
             failsafe,
             actuator,
+            dronecan_id,
             named_values,
         })
     }
@@ -611,6 +630,7 @@ mod tests {
             max_force_percent: None,
             failsafe: FailsafeAction::Hold,
             actuator: None,
+            dronecan_id: 1,
             named_values: None,
         }
     }

@@ -50,7 +50,8 @@ use super::schedule::TelemetrySchedule;
 use super::statustext::{Throttle, describe, with_folded};
 use super::telemetry;
 use crate::bus::Goal;
-use crate::config::{Config, FailsafeAction, Source};
+use crate::config::{CommandSource, Config, FailsafeAction, Source};
+use crate::dronecan::messages as can;
 use mavlink::MavHeader;
 use mavlink::dialects::common::{
     COMMAND_LONG_DATA, MavAutopilot, MavCmd, MavMessage, MavResult, MavType,
@@ -410,6 +411,10 @@ impl BridgeCore {
             }
             _ => return,
         };
+        if self.dronecan_commands() {
+            // One source commands the servos: DroneCAN's.
+            return;
+        }
         self.handle_outputs(port, &values, now);
         // A sender that fills in no time (0) has no clock to keep.
         if time_usec != 0 {
@@ -422,20 +427,20 @@ impl BridgeCore {
     }
 
     fn handle_outputs(&mut self, port: u8, values: &ChannelValues, now: Instant) {
-        self.last_output_at = Some(now);
-        let stream_back = self.stream_failsafe;
-        if stream_back {
+        if self.stream_failsafe {
             // The rate is measured from the stream's return (see `RateMeter::restart`).
             self.rate.restart(now);
         }
-        self.say_missing_channels(values, now);
+        let carried: Vec<bool> = self
+            .servos
+            .iter()
+            .map(|s| values.get(s.channel).is_some())
+            .collect();
+        let channels: Vec<u8> = self.servos.iter().map(|s| s.channel).collect();
+        self.say_missing(&carried, &channels, now);
         let fastest = self.rate.count(port, self.requested_rate_hz, now);
         self.judge_rate(fastest);
-        if stream_back {
-            self.stream_failsafe = false;
-            self.event(BridgeEvent::FailsafeLeft, now);
-        }
-        self.keep_servo_failsafes(values, stream_back, now);
+        self.carried(&carried, &channels, now);
         for (channel, us) in values.iter() {
             if let Some(slot) = self.channels.get_mut(usize::from(channel)) {
                 *slot = Some(us);
@@ -460,24 +465,87 @@ impl BridgeCore {
         }
     }
 
-    /// An output message came: a servo whose channel's absence is not said yet is said
-    /// missing now if this message goes on without its channel; if it carries the channel,
-    /// that was a pause, not an absence, and nothing is said either way.
-    fn say_missing_channels(&mut self, values: &ChannelValues, now: Instant) {
+    /// DroneCAN's ArrayCommand, received at `now` (with `[bridge] commands = "dronecan"`; with
+    /// MAVLink commanding, it moves nothing): each servo follows the command of its
+    /// `dronecan_id`, mapped by [`crate::config::ServoConfig::map_can_command`]; a command it
+    /// cannot take (a force, a speed, not a number) or a value that means no output makes it
+    /// hold. The failsafe is kept as for output messages: an ArrayCommand stands for one, each
+    /// actuator id it carries for a channel.
+    pub fn handle_can_commands(&mut self, commands: &[can::Command], now: Instant) {
+        let Some(dronecan) = self
+            .cfg
+            .dronecan
+            .as_ref()
+            .filter(|_| self.dronecan_commands())
+        else {
+            return;
+        };
+        let unitless = dronecan.unitless;
+        let wanted: Vec<Option<&can::Command>> = self
+            .cfg
+            .servos
+            .iter()
+            .map(|s| {
+                commands
+                    .iter()
+                    .rev()
+                    .find(|c| c.actuator_id == s.dronecan_id)
+            })
+            .collect();
+        let carried: Vec<bool> = wanted.iter().map(Option::is_some).collect();
+        let goals: Vec<Option<Goal>> = wanted
+            .iter()
+            .zip(&self.cfg.servos)
+            .map(|(c, servo)| {
+                c.map(
+                    |c| match servo.map_can_command(c.command_type, c.value, unitless) {
+                        Some(position) => Goal::Position(position),
+                        None => Goal::Hold,
+                    },
+                )
+            })
+            .collect();
+        let ids: Vec<u8> = self.cfg.servos.iter().map(|s| s.dronecan_id).collect();
+        self.say_missing(&carried, &ids, now);
+        self.carried(&carried, &ids, now);
+        for (i, goal) in goals.into_iter().enumerate() {
+            if let Some(goal) = goal {
+                self.command(i, goal);
+            }
+        }
+    }
+
+    /// The output stream is to be asked for: MAVLink commands the servos, and the stream
+    /// neither runs as asked nor was refused.
+    fn asks_for_outputs(&self) -> bool {
+        !self.dronecan_commands() && !self.stream_ok && !self.source_refused
+    }
+
+    /// The servos take their goals from DroneCAN (`[bridge] commands = "dronecan"`).
+    fn dronecan_commands(&self) -> bool {
+        self.cfg.bridge.commands == CommandSource::DroneCan
+    }
+
+    /// A message that stands for the outputs came (`carried`: per servo, whether it carries
+    /// the servo's channel, named `numbers[i]` in what is said): the stream's failsafe ends, a
+    /// servo whose channel's absence is not said yet is said missing now if this message goes
+    /// on without its channel; if it carries the channel, that was a pause, not an absence,
+    /// and nothing is said either way.
+    fn say_missing(&mut self, carried: &[bool], numbers: &[u8], now: Instant) {
+        self.last_output_at = Some(now);
         let timeout_ms = self.cfg.mavlink.failsafe_timeout_ms;
         for i in 0..self.servos.len() {
             let slot = &mut self.servos[i];
             if slot.absence != Absence::Unsaid {
                 continue;
             }
-            let channel = slot.channel;
-            if values.get(channel).is_some() {
+            if carried[i] {
                 slot.absence = Absence::None;
             } else {
                 slot.absence = Absence::Said;
                 let missing = BridgeEvent::ChannelMissing {
                     servo: i,
-                    channel,
+                    channel: numbers[i],
                     timeout_ms,
                 };
                 self.event(missing, now);
@@ -485,13 +553,17 @@ impl BridgeCore {
         }
     }
 
-    /// The servos whose channel `values` carries leave their failsafe; the watch for the
-    /// others begins now if it has not begun, or begins again after the stream's failsafe.
-    fn keep_servo_failsafes(&mut self, values: &ChannelValues, stream_back: bool, now: Instant) {
+    /// After [`Self::say_missing`]: the stream's failsafe ends if it was on; the servos whose
+    /// channel the message carries leave their failsafe; the watch for the others begins now
+    /// if it has not begun, or begins again after the stream's failsafe.
+    fn carried(&mut self, carried: &[bool], numbers: &[u8], now: Instant) {
+        let stream_back = std::mem::replace(&mut self.stream_failsafe, false);
+        if stream_back {
+            self.event(BridgeEvent::FailsafeLeft, now);
+        }
         for i in 0..self.servos.len() {
             let slot = &mut self.servos[i];
-            let channel = slot.channel;
-            if values.get(channel).is_none() {
+            if !carried[i] {
                 if slot.carried_at.is_none() || stream_back {
                     slot.carried_at = Some(now);
                 }
@@ -502,6 +574,7 @@ impl BridgeCore {
             slot.ticked = true;
             slot.failsafe = false;
             if std::mem::replace(&mut slot.absence, Absence::None) == Absence::Said {
+                let channel = numbers[i];
                 self.event(BridgeEvent::ChannelBack { servo: i, channel }, now);
             }
         }
@@ -617,7 +690,7 @@ impl BridgeCore {
     pub fn handle_timeout(&mut self, now: Instant, reports: &[ServoReport]) {
         self.check_failsafe(now);
         self.check_safety_status(now);
-        if self.last_output_at.is_some() {
+        if self.last_output_at.is_some() && !self.dronecan_commands() {
             let fastest = self.rate.roll(self.requested_rate_hz, now);
             self.judge_rate(fastest);
         }
@@ -629,7 +702,7 @@ impl BridgeCore {
         }
         if now >= self.next_stream_request {
             self.next_stream_request = now + STREAM_REQUEST_PERIOD;
-            if !self.stream_ok && !self.source_refused {
+            if self.asks_for_outputs() {
                 self.request_stream();
             }
         }
@@ -884,7 +957,7 @@ impl BridgeCore {
             }
             t = earliest(t, Some(due));
         }
-        if self.last_output_at.is_some() {
+        if self.last_output_at.is_some() && !self.dronecan_commands() {
             t = earliest(t, Some(self.rate.deadline()));
         }
         if self.system_id.is_none() {
@@ -894,7 +967,7 @@ impl BridgeCore {
             t,
             Some(self.next_heartbeat.min(self.telemetry.next_deadline())),
         );
-        if !self.stream_ok && !self.source_refused {
+        if self.asks_for_outputs() {
             t = earliest(t, Some(self.next_stream_request));
         }
         earliest(t, self.params.next_deadline())

@@ -59,6 +59,8 @@ impl BridgeCore {
             // link is a view (see docs/mavlink.md). Addressed to the bridge: DENIED, so that
             // the ground station says why; a broadcast is ignored, as any other refusal of one.
             _ if moves && link != AUTOPILOT_LINK => MavResult::MAV_RESULT_DENIED,
+            // One source commands the servos: with DroneCAN's, MAVLink moves nothing.
+            _ if moves && self.dronecan_commands() => MavResult::MAV_RESULT_DENIED,
             MavCmd::MAV_CMD_DO_SET_SERVO => self.do_set_servo(cmd.params[0], cmd.params[1], now),
             MavCmd::MAV_CMD_DO_SET_ACTUATOR => self.do_set_actuator(&cmd.params, now),
             MavCmd::MAV_CMD_REQUEST_MESSAGE if how == Handling::Own => {
