@@ -14,6 +14,7 @@
 //!   (feature `sitl`, on by default; the Debian package is built without it).
 
 pub mod bus;
+pub mod can_node;
 pub mod commission;
 pub mod config;
 pub mod deploy;

@@ -14,13 +14,14 @@ use std::path::{Path, PathBuf};
 use syn::visit::Visit;
 
 /// Bottom first. A module may use those before it, never those after it.
-const LAYERS: [&str; 13] = [
+const LAYERS: [&str; 14] = [
     "protocol",
     "dronecan",
     "serial",
     "bus",
     "config",
     "mavlink",
+    "can_node",
     "record",
     "deploy",
     "runtime",

@@ -12,14 +12,17 @@
 //! data and waits.
 
 mod buses;
+pub(crate) mod can;
 pub mod governor;
 pub(crate) mod links;
 pub mod service;
 mod udp;
 
 use crate::bus::{BusEvent, BusHandle, BusStatus, Health, ShutdownForce};
+use crate::can_node::CanNode;
 use crate::config::edit::MappingFile;
 use crate::config::{Config, ForceAction};
+use crate::dronecan::frame::CanFrame;
 use crate::mavlink::outbox::Queued;
 use crate::mavlink::param_server::ParamSet;
 use crate::mavlink::signing::{self, DropCounts};
@@ -314,6 +317,14 @@ struct Bridge {
     /// Until the autopilot's first output message: since when the bridge waits, and when it
     /// next says so.
     no_autopilot: Option<(Instant, Instant, std::time::Duration)>,
+    /// The DroneCAN node and its interface's task, with a `[dronecan]` table.
+    can: Option<CanSide>,
+}
+
+/// The DroneCAN node (sans-IO) and the ends of its interface's task.
+struct CanSide {
+    node: CanNode,
+    link: can::CanLink,
 }
 
 /// One input of the loop, in the order the loop prefers them.
@@ -322,6 +333,8 @@ enum Input {
     Message(LinkId, MavHeader, MavMessage),
     Edited(ParamSet, Result<Config, String>),
     BusEvent(usize, BusEvent),
+    /// A CAN frame, and when it came.
+    Can(CanFrame, Instant),
     Timeout,
     /// Only the view (nothing happened for [`VIEW_STALE`]), the watchdog's ping or the note
     /// that no autopilot has been heard is due.
@@ -427,6 +440,16 @@ impl Bridge {
             ));
         }
         let (edits, edited) = spawn_mapping_writer(mapping);
+        let can = cfg.dronecan.as_ref().map(|d| {
+            let machine_id = std::fs::read_to_string("/etc/machine-id").ok();
+            let unique_id = crate::can_node::unique_id(machine_id.as_deref());
+            let node = CanNode::new(&cfg, unique_id, Instant::now())
+                .expect("a [dronecan] table makes a node");
+            let (link, task) = can::spawn(d.interface.clone());
+            tasks.push(task);
+            tracing::info!(interface = %d.interface, node_id = d.node_id, commands = %cfg.bridge.commands, "DroneCAN node set up");
+            CanSide { node, link }
+        });
         Ok(Bridge {
             cfg,
             known_autopilot,
@@ -451,6 +474,7 @@ impl Bridge {
                 let now = Instant::now();
                 Some((now, now + NO_AUTOPILOT_NOTE, NO_AUTOPILOT_NOTE))
             },
+            can,
         })
     }
 
@@ -541,9 +565,20 @@ impl Bridge {
                         self.core.event(e, Instant::now());
                     }
                 }
+                Input::Can(frame, at) => {
+                    if let Some(can) = &mut self.can
+                        && let Some(commands) = can.node.handle_frame(&frame, at)
+                    {
+                        self.core.handle_can_commands(&commands.commands, at);
+                    }
+                }
                 Input::Timeout => {
                     let (reports, _) = self.buses.reports(&self.cfg);
-                    self.core.handle_timeout(Instant::now(), &reports);
+                    let now = Instant::now();
+                    self.core.handle_timeout(now, &reports);
+                    if let Some(can) = &mut self.can {
+                        can.node.handle_timeout(now, &reports);
+                    }
                 }
                 Input::Housekeeping => {}
             }
@@ -568,6 +603,7 @@ impl Bridge {
                 }
             }
             self.pass_messages();
+            self.pass_frames();
             self.say_notes();
             self.refresh_view();
             self.feed_watchdog();
@@ -589,14 +625,24 @@ impl Bridge {
         if now < next {
             return;
         }
-        tracing::warn!(
-            "no outputs heard from the autopilot for {} s on {}: the buses run meanwhile; \
-             check that the autopilot sends MAVLink there (ArduPilot: SERIALn_PROTOCOL = 2 on that \
-             port; PX4: MAV_n_CONFIG, or SER_<port>_PROTO on PX4 main), and that its system and \
-             component IDs are the mapping file's",
-            now.duration_since(since).as_secs(),
-            self.cfg.mavlink.connection
-        );
+        let secs = now.duration_since(since).as_secs();
+        match (&self.cfg.dronecan, self.cfg.bridge.commands) {
+            (Some(d), crate::config::CommandSource::DroneCan) => tracing::warn!(
+                "no ArrayCommand for the servos heard for {secs} s on {}: the buses run \
+                 meanwhile; check that the autopilot drives these outputs over DroneCAN \
+                 (ArduPilot: CAN_Dn_PROTOCOL 1, CAN_Dn_UC_SRV_BM with the servos' outputs; PX4: \
+                 UAVCAN_ENABLE, UAVCAN_SV_FUNCn), that the bus's bit rate is the autopilot's, and \
+                 each servo's dronecan_id (ArduPilot numbers from 1, PX4 from 0)",
+                d.interface
+            ),
+            _ => tracing::warn!(
+                "no outputs heard from the autopilot for {secs} s on {}: the buses run meanwhile; \
+                 check that the autopilot sends MAVLink there (ArduPilot: SERIALn_PROTOCOL = 2 on that \
+                 port; PX4: MAV_n_CONFIG, or SER_<port>_PROTO on PX4 main), and that its system and \
+                 component IDs are the mapping file's",
+                self.cfg.mavlink.connection
+            ),
+        }
         let every = (every * 2).min(NO_AUTOPILOT_NOTE_MAX);
         self.no_autopilot = Some((since, now + every, every));
     }
@@ -610,26 +656,24 @@ impl Bridge {
         let view_deadline = self.view.as_ref().map(|_| self.view_at + VIEW_STALE);
         let watchdog_deadline = self.watchdog.as_ref().map(Watchdog::due_at);
         let note_deadline = self.no_autopilot.map(|(_, next, _)| next);
-        let deadline = [
-            core_deadline,
-            view_deadline,
-            watchdog_deadline,
-            note_deadline,
-        ]
-        .into_iter()
-        .flatten()
-        .min()
-        .map(tokio::time::Instant::from_std);
+        let can_deadline = self.can.as_ref().map(|c| c.node.poll_timeout());
+        let due = [core_deadline, can_deadline].into_iter().flatten().min();
+        let deadline = [due, view_deadline, watchdog_deadline, note_deadline]
+            .into_iter()
+            .flatten()
+            .min()
+            .map(tokio::time::Instant::from_std);
         tokio::select! {
             biased;
             changed = stop.changed() => {
                 if changed.is_err() || *stop.borrow() { Input::Stop } else { Input::Timeout }
             }
             Some((link, header, msg)) = self.messages.recv() => Input::Message(link, header, msg),
+            Some((frame, at)) = can_frame(&mut self.can) => Input::Can(frame, at),
             Some((set, result)) = self.edited.recv() => Input::Edited(set, result),
             Some((bus, event)) = self.bus_events.recv() => Input::BusEvent(bus, event),
             _ = sleep_until(deadline) => {
-                if core_deadline.is_some_and(|at| at <= Instant::now()) {
+                if due.is_some_and(|at| at <= Instant::now()) {
                     Input::Timeout
                 } else {
                     Input::Housekeeping
@@ -683,6 +727,21 @@ impl Bridge {
         for ((batches, goals), ticked) in per_bus.iter_mut().zip(goals).zip(ticked) {
             if ticked || !goals.is_empty() {
                 batches.push((ticked, goals));
+            }
+        }
+    }
+
+    /// The DroneCAN node's frames go to its interface's task (never waiting for it: a frame
+    /// its queue cannot take is dropped and counted).
+    fn pass_frames(&mut self) {
+        let Some(can) = &mut self.can else {
+            return;
+        };
+        while let Some(frame) = can.node.poll_frame() {
+            if can.link.to_send.try_send(frame).is_err() {
+                can.link
+                    .dropped
+                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             }
         }
     }
@@ -795,6 +854,18 @@ impl Bridge {
                 tracing::warn!("{summary}");
             }
         }
+        if let Some(can) = &self.can {
+            let dropped = can.link.dropped.load(std::sync::atomic::Ordering::Relaxed);
+            let refused = can.node.refused();
+            if dropped > 0 || *refused != crate::dronecan::node::Refused::default() {
+                tracing::warn!(
+                    dropped,
+                    ?refused,
+                    "DroneCAN: frames dropped (a queue full, the interface closed) and frames \
+                     received that made no transfer, by why"
+                );
+            }
+        }
         let unsent: usize = self.writers.iter().map(LinkWriter::waiting).sum();
         if unsent > 0 {
             tracing::debug!("{unsent} MAVLink messages left unsent at the stop");
@@ -805,6 +876,14 @@ impl Bridge {
             let stats = r.finish();
             tracing::info!(file = ?path, ?stats, "flight record closed");
         }
+    }
+}
+
+/// The next frame of the DroneCAN interface; without one, never.
+async fn can_frame(can: &mut Option<CanSide>) -> Option<(CanFrame, Instant)> {
+    match can {
+        Some(c) => c.link.received.recv().await,
+        None => std::future::pending().await,
     }
 }
 

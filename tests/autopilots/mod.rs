@@ -6,6 +6,8 @@
 //! `plane.parm` beside it, or `$LJ9DA_ARDUPLANE_DEFAULTS`) and `$LJ9DA_PX4` (a folder with
 //! `bin/px4` and `etc/`), else `../shared/sitl/` beside the repository.
 
+pub mod can;
+
 use crate::common::python::python;
 use mavlink::MavlinkReader;
 use mavlink::dialects::common::{MavMessage, SERVO_OUTPUT_RAW_DATA};

@@ -1,0 +1,170 @@
+//! DroneCAN beside ArduPlane SITL: a network namespace of the test's own, where SITL's
+//! multicast CAN stays, and a listener on that bus that keeps every ArrayCommand and every
+//! transfer of the bridge's node it hears.
+
+use lj9da_bridge::dronecan::frame::{CanId, Kind};
+use lj9da_bridge::dronecan::messages::{self, ARRAY_COMMAND, Command};
+use lj9da_bridge::dronecan::{mcast, transfer::Reassembler};
+use std::net::UdpSocket;
+use std::process::Command as Process;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Move the calling thread (and every thread and process it starts from now on) into a new
+/// network namespace with its loopback up and multicast routed on it. Needs root (as CI runs);
+/// without, the test fails with one line saying so.
+pub fn enter_network_namespace() {
+    // SAFETY: unshare(2) with CLONE_NEWNET changes only the calling thread's namespace.
+    if unsafe { libc::unshare(libc::CLONE_NEWNET) } != 0 {
+        let e = std::io::Error::last_os_error();
+        panic!(
+            "DroneCAN with ArduPlane SITL needs a network namespace of its own, which needs root \
+             (CAP_SYS_ADMIN): unshare(CLONE_NEWNET) failed: {e}"
+        );
+    }
+    for args in [
+        &["link", "set", "lo", "up"][..],
+        &["link", "set", "lo", "multicast", "on"],
+        &["route", "add", "224.0.0.0/4", "dev", "lo"],
+    ] {
+        let status = Process::new("ip")
+            .args(args)
+            .status()
+            .expect("the ip command (iproute2)");
+        assert!(status.success(), "ip {args:?} failed in the namespace");
+    }
+}
+
+/// A socket on SITL's CAN group, shared (SO_REUSEADDR) with ArduPlane's and the bridge's.
+fn shared_multicast_socket() -> UdpSocket {
+    use nix::sys::socket::{
+        AddressFamily, IpMembershipRequest, SockFlag, SockType, SockaddrIn, bind, setsockopt,
+        socket, sockopt,
+    };
+    use std::os::fd::AsRawFd;
+    let fd = socket(
+        AddressFamily::Inet,
+        SockType::Datagram,
+        SockFlag::SOCK_CLOEXEC,
+        None,
+    )
+    .unwrap();
+    setsockopt(&fd, sockopt::ReuseAddr, &true).unwrap();
+    let group = std::net::SocketAddrV4::new(mcast::GROUP, mcast::PORT);
+    bind(fd.as_raw_fd(), &SockaddrIn::from(group)).expect("the multicast port");
+    setsockopt(
+        &fd,
+        sockopt::IpAddMembership,
+        &IpMembershipRequest::new(mcast::GROUP, None),
+    )
+    .expect("the CAN group");
+    UdpSocket::from(fd)
+}
+
+/// An ArrayCommand heard on the bus (from another node than the bridge's): when, its commands.
+#[derive(Debug, Clone)]
+pub struct Heard {
+    pub at: Instant,
+    pub commands: Vec<Command>,
+}
+
+#[derive(Default)]
+struct State {
+    commands: Vec<Heard>,
+    /// Per data type, the transfers from `node` (the bridge's id) and when.
+    from_node: Vec<(Instant, u16, Vec<u8>)>,
+}
+
+/// A listener on SITL's CAN interface 1 (group 239.65.82.0).
+pub struct CanListener {
+    state: Arc<Mutex<State>>,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl CanListener {
+    /// Listen; the bridge's node is `node` (its transfers of the types in `types` are kept).
+    pub fn start(node: u8, types: &'static [messages::DataType]) -> CanListener {
+        let socket = shared_multicast_socket();
+        socket
+            .set_read_timeout(Some(Duration::from_millis(50)))
+            .unwrap();
+        let state = Arc::new(Mutex::new(State::default()));
+        let stop = Arc::new(AtomicBool::new(false));
+        let (s, st) = (state.clone(), stop.clone());
+        let thread = std::thread::spawn(move || {
+            let mut reassembler = Reassembler::new();
+            let mut buf = [0u8; 128];
+            while !st.load(Ordering::Relaxed) {
+                let Ok(n) = socket.recv(&mut buf) else {
+                    continue;
+                };
+                let at = Instant::now();
+                let Ok(frame) = mcast::decode(&buf[..n]) else {
+                    continue;
+                };
+                let wanted = |id: &CanId| {
+                    if id.kind != Kind::Message {
+                        return None;
+                    }
+                    if id.data_type_id == ARRAY_COMMAND.id && id.source != node {
+                        return Some(ARRAY_COMMAND.signature);
+                    }
+                    types
+                        .iter()
+                        .find(|t| t.id == id.data_type_id && id.source == node)
+                        .map(|t| t.signature)
+                };
+                let Ok(Some(t)) = reassembler.push(&frame, at, wanted) else {
+                    continue;
+                };
+                let mut state = s.lock().unwrap();
+                if t.id.data_type_id == ARRAY_COMMAND.id {
+                    if let Some(commands) = messages::decode_array_command(&t.payload) {
+                        state.commands.push(Heard { at, commands });
+                    }
+                } else {
+                    state.from_node.push((at, t.id.data_type_id, t.payload));
+                }
+            }
+        });
+        CanListener {
+            state,
+            stop,
+            thread: Some(thread),
+        }
+    }
+
+    /// The ArrayCommands heard since `since`.
+    pub fn commands_since(&self, since: Instant) -> Vec<Heard> {
+        let state = self.state.lock().unwrap();
+        state
+            .commands
+            .iter()
+            .filter(|h| h.at >= since)
+            .cloned()
+            .collect()
+    }
+
+    /// The bridge's transfers of data type `id` since `since`: when, payload.
+    pub fn node_transfers_since(&self, id: u16, since: Instant) -> Vec<(Instant, Vec<u8>)> {
+        let state = self.state.lock().unwrap();
+        state
+            .from_node
+            .iter()
+            .filter(|(at, ty, _)| *ty == id && *at >= since)
+            .map(|(at, _, p)| (*at, p.clone()))
+            .collect()
+    }
+}
+
+impl Drop for CanListener {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
