@@ -6,34 +6,16 @@ use lj9da_bridge::dronecan::frame::{CanId, Kind};
 use lj9da_bridge::dronecan::messages::{self, ARRAY_COMMAND, Command};
 use lj9da_bridge::dronecan::{mcast, transfer::Reassembler};
 use std::net::UdpSocket;
-use std::process::Command as Process;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-/// Move the calling thread (and every thread and process it starts from now on) into a new
-/// network namespace with its loopback up and multicast routed on it. Needs root (as CI runs);
-/// without, the test fails with one line saying so.
+/// Move the calling thread into a network namespace of its own (see
+/// [`crate::common::netns`]); the test fails with one line where it cannot.
 pub fn enter_network_namespace() {
-    // SAFETY: unshare(2) with CLONE_NEWNET changes only the calling thread's namespace.
-    if unsafe { libc::unshare(libc::CLONE_NEWNET) } != 0 {
-        let e = std::io::Error::last_os_error();
-        panic!(
-            "DroneCAN with ArduPlane SITL needs a network namespace of its own, which needs root \
-             (CAP_SYS_ADMIN): unshare(CLONE_NEWNET) failed: {e}"
-        );
-    }
-    for args in [
-        &["link", "set", "lo", "up"][..],
-        &["link", "set", "lo", "multicast", "on"],
-        &["route", "add", "224.0.0.0/4", "dev", "lo"],
-    ] {
-        let status = Process::new("ip")
-            .args(args)
-            .status()
-            .expect("the ip command (iproute2)");
-        assert!(status.success(), "ip {args:?} failed in the namespace");
+    if let Err(why) = crate::common::netns::enter() {
+        panic!("DroneCAN with ArduPlane SITL: {why}");
     }
 }
 

@@ -5,6 +5,7 @@
 #![allow(dead_code)]
 
 pub mod mapping;
+pub mod netns;
 pub mod peer;
 pub mod ports;
 pub mod python;
