@@ -1477,5 +1477,11 @@ async fn arduplane_over_dronecan() {
     eprintln!(
         "200 Hz asked: {n} long packets; ArrayCommand {can_hz:.1}/s, long packets {bus_hz:.1}/s; {judged} lone ArrayCommands followed within 20 ms"
     );
+
+    // A servo unwell (the rudder over its temperature alarm): the node's health says so, and
+    // ArduPlane refuses to arm, naming the node.
+    assert!(chain.sims[0].handle().overheat(4));
+    let refusal = refused_for(&mut gcs, &format!("Node {node_id} unhealthy"), SECS(20));
+    eprintln!("arming refused: {refusal}");
     drop(ap);
 }

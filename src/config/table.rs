@@ -65,6 +65,18 @@ pub(super) fn resolved_table(config: &Config) -> String {
         config.bridge.on_exit,
         config.bridge.while_safe
     ));
+    let commands = match (&config.dronecan, config.bridge.commands) {
+        (Some(d), super::CommandSource::DroneCan) => format!(
+            "goals from DroneCAN ArrayCommand on {} (node {}, UNITLESS as {:?}, actuator Status {} Hz)",
+            d.interface, d.node_id, d.unitless, d.status_hz
+        ),
+        (Some(d), super::CommandSource::Mavlink) => format!(
+            "goals from MAVLink; DroneCAN node {} on {} reports only (actuator Status {} Hz)",
+            d.node_id, d.interface, d.status_hz
+        ),
+        (None, _) => "goals from MAVLink".to_string(),
+    };
+    out.push_str(&format!("{commands}\n\n"));
 
     let mut buses = vec![row([
         "bus",
