@@ -51,10 +51,11 @@ print(json.dumps(heard))
 
 #[test]
 fn a_dronecan_node_commands_the_servos_and_reads_the_bridges_node() {
+    // Installed first: the namespace has no way out to PyPI.
+    let python = common::python::dronecan_python();
     if !netns::enter_or_say() {
         return;
     }
-    let python = common::python::dronecan_python();
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

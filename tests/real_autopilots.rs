@@ -1340,6 +1340,9 @@ fn arduplane_on_can(dir: &std::path::Path, extra: &str) -> (Autopilot, String) {
 #[test]
 #[ignore = "needs ArduPlane SITL, root for a network namespace: run by .ci/autopilots"]
 fn arduplane_drives_the_servos_over_dronecan() {
+    // pymavlink (the ground station, the log's reader) installed first: the namespace has no
+    // way out to PyPI.
+    common::python::python();
     autopilots::can::enter_network_namespace();
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(4)
