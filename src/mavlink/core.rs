@@ -411,11 +411,11 @@ impl BridgeCore {
             }
             _ => return,
         };
-        if self.dronecan_commands() {
-            // One source commands the servos: DroneCAN's.
-            return;
+        // One source commands the servos: with DroneCAN's, the outputs move nothing (the
+        // autopilot's clock they carry is still kept for the flight record).
+        if !self.dronecan_commands() {
+            self.handle_outputs(port, &values, now);
         }
-        self.handle_outputs(port, &values, now);
         // A sender that fills in no time (0) has no clock to keep.
         if time_usec != 0 {
             self.clock = Some(AutopilotClock {
@@ -527,10 +527,10 @@ impl BridgeCore {
     }
 
     /// A message that stands for the outputs came (`carried`: per servo, whether it carries
-    /// the servo's channel, named `numbers[i]` in what is said): the stream's failsafe ends, a
-    /// servo whose channel's absence is not said yet is said missing now if this message goes
-    /// on without its channel; if it carries the channel, that was a pause, not an absence,
-    /// and nothing is said either way.
+    /// the servo's channel, named `numbers[i]` in what is said): a servo whose channel's
+    /// absence is not said yet is said missing now if this message goes on without its
+    /// channel; if it carries the channel, that was a pause, not an absence, and nothing is
+    /// said either way. [`Self::carried`] follows.
     fn say_missing(&mut self, carried: &[bool], numbers: &[u8], now: Instant) {
         self.last_output_at = Some(now);
         let timeout_ms = self.cfg.mavlink.failsafe_timeout_ms;
