@@ -1206,10 +1206,10 @@ fn goals_follow_can(
 /// machine.
 const FOLLOW_WITHIN: Duration = Duration::from_millis(20);
 
-/// The ArrayCommands that stood alone for [`FOLLOW_WITHIN`] (no newer one came meanwhile) and
-/// changed a goal: how many of them were followed by a long packet carrying their goals within
-/// that time (a newer one may replace one sooner: the newest wins). Those that were not are
-/// printed.
+/// Every ArrayCommand that stood alone for [`FOLLOW_WITHIN`] (no newer one came meanwhile) and
+/// changed a goal was followed by a long packet carrying its goals within that time (counted
+/// from [`LISTENER_SLACK`] before the listener took it); a newer one may replace it sooner (the
+/// newest wins). Returns how many were judged.
 fn each_command_followed(
     cfg: &Config,
     packets: &[(Instant, Vec<(u8, i16)>)],
@@ -1244,16 +1244,19 @@ fn each_command_followed(
             continue;
         }
         judged += 1;
+        // The bridge may have taken the command, and sent its packet, a little before the
+        // test's listener took the same datagram.
+        let from = h.at - LISTENER_SLACK;
         let followed = packets
             .iter()
-            .any(|(at, g)| *at >= h.at && *at - h.at <= FOLLOW_WITHIN && close(&want, g));
+            .any(|(at, g)| *at >= from && *at - from <= FOLLOW_WITHIN && close(&want, g));
         if !followed {
             // What the bus did next, and the commands around: for the message.
             let next_packets: Vec<(Duration, Vec<(u8, i16)>)> = packets
                 .iter()
-                .filter(|(at, _)| *at >= h.at)
+                .filter(|(at, _)| *at >= from)
                 .take(2)
-                .map(|(at, g)| (*at - h.at, g.clone()))
+                .map(|(at, g)| (*at - from, g.clone()))
                 .collect();
             missed.push((want, next.at - h.at, next_packets));
         }
@@ -1262,18 +1265,14 @@ fn each_command_followed(
         judged > 0,
         "no ArrayCommand stood alone for {FOLLOW_WITHIN:?}"
     );
-    if !missed.is_empty() {
-        // Seen in about one run in three: the bus master held the goal (counted superseded)
-        // until the next ArrayCommand, 120-180 ms later. Under investigation; printed, not
-        // judged, so that the runs keep the figures.
-        eprintln!(
-            "{} of {judged} ArrayCommands got no long packet within {FOLLOW_WITHIN:?} (goals, the \
-             next command after, the next packets after): {:?}",
-            missed.len(),
-            &missed[..missed.len().min(3)]
-        );
-    }
-    judged - missed.len()
+    assert!(
+        missed.is_empty(),
+        "{} of {judged} ArrayCommands got no long packet within {FOLLOW_WITHIN:?} (goals, the \
+         next command after, the next packets after the listener's slack): {:?}",
+        missed.len(),
+        &missed[..missed.len().min(3)]
+    );
+    judged
 }
 
 /// ArduPlane's own log: the CSRV rows (TimeUS, Id, Pos) of its newest `.bin` in `dir/logs`.
@@ -1376,7 +1375,12 @@ async fn arduplane_over_dronecan() {
         "/mappings/ardupilot-plane.toml"
     ))
     .unwrap();
-    let text = example.replacen("[bridge]\n", "[bridge]\ncommands = \"dronecan\"\n", 1);
+    // SITL's DroneCAN thread leaves gaps of 400-600 ms between ArrayCommands at times (see
+    // docs/dronecan.md): a longer failsafe timeout, so that the sweep is not cut by the failsafe
+    // (which the kill below checks).
+    let text = example
+        .replacen("[bridge]\n", "[bridge]\ncommands = \"dronecan\"\n", 1)
+        .replacen("failsafe_timeout_ms = 500", "failsafe_timeout_ms = 1000", 1);
     let text = format!("{text}\n{}", table.replacen("\"can0\"", "\"mcast:0\"", 1));
     let cfg = Config::parse(&text, "the page's mapping").expect("the page's mapping is valid");
     let chain = Chain::start_opts(&text, ChainOptions::default()).await;
@@ -1397,7 +1401,7 @@ async fn arduplane_over_dronecan() {
     let (n, can_hz, bus_hz) = goals_follow_can(&cfg, &packets, &heard, window);
     let judged = each_command_followed(&cfg, &packets, &heard);
     eprintln!(
-        "100 Hz asked: {n} long packets; ArrayCommand {can_hz:.1}/s, long packets {bus_hz:.1}/s; {judged} lone ArrayCommands followed within 20 ms"
+        "100 Hz asked: {n} long packets; ArrayCommand {can_hz:.1}/s, long packets {bus_hz:.1}/s; {judged} lone ArrayCommands each followed within 20 ms"
     );
 
     // The bridge's node as ArduPlane hears it: each servo's Status, its NodeStatus at 1 Hz.
@@ -1478,7 +1482,7 @@ async fn arduplane_over_dronecan() {
     let (n, can_hz, bus_hz) = goals_follow_can(&cfg, &packets, &heard, window);
     let judged = each_command_followed(&cfg, &packets, &heard);
     eprintln!(
-        "200 Hz asked: {n} long packets; ArrayCommand {can_hz:.1}/s, long packets {bus_hz:.1}/s; {judged} lone ArrayCommands followed within 20 ms"
+        "200 Hz asked: {n} long packets; ArrayCommand {can_hz:.1}/s, long packets {bus_hz:.1}/s; {judged} lone ArrayCommands each followed within 20 ms"
     );
 
     // A servo unwell (the rudder over its temperature alarm): the node's health says so, and
