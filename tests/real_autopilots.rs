@@ -14,7 +14,7 @@
 mod autopilots;
 mod common;
 
-use autopilots::can::{CanListener, Heard};
+use autopilots::can::{CanListener, Heard, arduplane_on_can};
 use autopilots::{Autopilot, GcsMessage, GroundStation, Tap, Tapped, block_after, fresh_dir};
 use common::{Chain, ChainOptions};
 use lj9da_bridge::config::Config;
@@ -1310,32 +1310,6 @@ fn csrv_rows(dir: &std::path::Path) -> Vec<(u64, u8, f64)> {
         .collect()
 }
 
-/// The page's ArduPlane: its MAVLink parameters (autopilot.md), its DroneCAN parameters
-/// (dronecan.md) with `extra` lines after them, and the log kept on the ground.
-fn arduplane_on_can(dir: &std::path::Path, extra: &str) -> (Autopilot, String) {
-    let (binary, defaults) = autopilots::arduplane().expect(
-        "no ArduPlane SITL: set LJ9DA_ARDUPLANE to an arduplane program (plane.parm beside it)",
-    );
-    let parm = dir.join(format!("bridge-can{}.parm", extra.len()));
-    std::fs::write(
-        &parm,
-        format!(
-            "{}{}LOG_DISARMED 1\n{extra}",
-            block_after(PAGE, "<!-- sitl: ArduPlane parameters -->"),
-            block_after(
-                DRONECAN_PAGE,
-                "<!-- sitl: ArduPlane DroneCAN parameters -->"
-            ),
-        ),
-    )
-    .unwrap();
-    let defaults = format!("{},{}", defaults.display(), parm.display());
-    (
-        Autopilot::arduplane(&binary, dir, &defaults, 14560),
-        defaults,
-    )
-}
-
 #[test]
 #[ignore = "needs ArduPlane SITL, root for a network namespace: run by .ci/autopilots"]
 fn arduplane_drives_the_servos_over_dronecan() {
@@ -1365,7 +1339,7 @@ async fn arduplane_over_dronecan() {
     .node_id;
     let listener = CanListener::start(node_id, &[ACTUATOR_STATUS, NODE_STATUS]);
     let tap = Tap::start(14560);
-    let (ap, _) = arduplane_on_can(&dir, "");
+    let (ap, _) = arduplane_on_can(&dir, "", 14560);
     tap.wait_for_autopilot(SECS(60), || ap.console());
 
     // The shipped example (its four surfaces on outputs 1, 2, 4 and 5, the page's
@@ -1466,6 +1440,7 @@ async fn arduplane_over_dronecan() {
     let (ap, _) = arduplane_on_can(
         &dir,
         "CAN_D1_UC_SRV_RT 200\nCAN_D1_UC_OPTION 0\nSCHED_LOOP_RATE 200\n",
+        14560,
     );
     tap.wait_for_autopilot(SECS(60), || ap.console());
     chain

@@ -2,10 +2,12 @@
 //! multicast CAN stays, and a listener on that bus that keeps every ArrayCommand and every
 //! transfer of the bridge's node it hears.
 
+use super::{Autopilot, block_after};
 use lj9da_bridge::dronecan::frame::{CanId, Kind};
 use lj9da_bridge::dronecan::messages::{self, ARRAY_COMMAND, Command};
 use lj9da_bridge::dronecan::{mcast, transfer::Reassembler};
 use std::net::UdpSocket;
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -17,6 +19,33 @@ pub fn enter_network_namespace() {
     if let Err(why) = crate::common::netns::enter() {
         panic!("DroneCAN with ArduPlane SITL: {why}");
     }
+}
+
+/// The pages' ArduPlane: its MAVLink parameters (`docs/autopilot.md`), its DroneCAN parameters
+/// (`docs/dronecan.md`) with `extra` lines after them, and the log kept on the ground; SERIAL1
+/// sends to UDP `udp_port`. Returns the autopilot and its defaults.
+pub fn arduplane_on_can(dir: &Path, extra: &str, udp_port: u16) -> (Autopilot, String) {
+    let (binary, defaults) = super::arduplane().expect(
+        "no ArduPlane SITL: set LJ9DA_ARDUPLANE to an arduplane program (plane.parm beside it)",
+    );
+    let parm = dir.join(format!("bridge-can{}.parm", extra.len()));
+    std::fs::write(
+        &parm,
+        format!(
+            "{}{}LOG_DISARMED 1\n{extra}",
+            block_after("docs/autopilot.md", "<!-- sitl: ArduPlane parameters -->"),
+            block_after(
+                "docs/dronecan.md",
+                "<!-- sitl: ArduPlane DroneCAN parameters -->"
+            ),
+        ),
+    )
+    .unwrap();
+    let defaults = format!("{},{}", defaults.display(), parm.display());
+    (
+        Autopilot::arduplane(&binary, dir, &defaults, udp_port),
+        defaults,
+    )
 }
 
 /// A socket on SITL's CAN group, shared (SO_REUSEADDR) with ArduPlane's and the bridge's.
