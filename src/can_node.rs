@@ -49,7 +49,7 @@ impl CanNode {
                 .unwrap_or(0)
         };
         let identity = Identity {
-            node_id: d.node_id,
+            node_id: d.node_id.fixed(),
             name: NODE_NAME.to_string(),
             software_major: version(0),
             software_minor: version(1),
@@ -62,6 +62,11 @@ impl CanNode {
             period: Duration::from_secs_f64(1.0 / d.status_hz),
             next_status: now,
         })
+    }
+
+    /// The node's id: `None` while it asks the bus's allocator for one (`node_id = "dynamic"`).
+    pub fn node_id(&self) -> Option<u8> {
+        self.node.node_id()
     }
 
     /// A frame received at `now`: the ArrayCommand it completes, if any.

@@ -145,3 +145,90 @@ fn a_dronecan_node_commands_the_servos_and_reads_the_bridges_node() {
             chain.stop().await;
         });
 }
+
+/// Node 100 on `mcast:0` as the bus's allocator (`dronecan`'s CentralizedServer with its node
+/// monitor) for 8 s; then asks GetNodeInfo of every node it gave an id to, and prints its
+/// allocation table, the NodeStatus sources it heard and the answers, as JSON.
+const ALLOCATOR: &str = r#"
+import json, time
+import dronecan
+from dronecan.app.node_monitor import NodeMonitor
+from dronecan.app.dynamic_node_id import CentralizedServer
+node = dronecan.make_node("mcast:0", node_id=100)
+monitor = NodeMonitor(node)
+server = CentralizedServer(node, monitor)
+sources = set()
+node.add_handler(dronecan.uavcan.protocol.NodeStatus, lambda e: sources.add(e.transfer.source_node_id))
+node.spin(8.0)
+table = [[bytes(u).hex() if u else None, n] for u, n in server.get_allocation_table()]
+infos = {}
+def asker(n):
+    def on_info(e):
+        if e is not None:
+            infos[n] = {"name": bytes(e.response.name).decode(),
+                        "unique_id": bytes(e.response.hardware_version.unique_id).hex()}
+    return on_info
+for u, n in table:
+    if n != 100:
+        node.request(dronecan.uavcan.protocol.GetNodeInfo.Request(), n, asker(n))
+node.spin(1.5)
+print(json.dumps({"table": table, "sources": sorted(sources), "infos": infos}))
+"#;
+
+#[test]
+fn a_dronecan_allocator_gives_the_bridge_its_node_id() {
+    let python = common::python::dronecan_python();
+    if !netns::enter_or_say() {
+        return;
+    }
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+        .block_on(async {
+            // The allocator first: it grants nothing until it has heard the bus for a while.
+            let peer = tokio::task::spawn_blocking(move || {
+                std::process::Command::new(python)
+                    .arg("-c")
+                    .arg(ALLOCATOR)
+                    .output()
+                    .expect("the dronecan allocator runs")
+            });
+            let mapping = Mapping::four_servos().with(
+                "[dronecan]",
+                "interface = \"mcast:0\"\nnode_id = \"dynamic\"",
+            );
+            let chain = Chain::start(mapping, false).await;
+            let out = peer.await.unwrap();
+            assert!(
+                out.status.success(),
+                "the dronecan allocator: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let heard: Value = serde_json::from_slice(&out.stdout).expect("the peer's JSON");
+            // One id given (besides the allocator's own), to the bridge's unique id: the one
+            // its GetNodeInfo gives, from a node that then speaks under that id.
+            let given: Vec<&Value> = heard["table"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|e| e[1] != 100)
+                .collect();
+            assert_eq!(given.len(), 1, "{heard}");
+            let (uid, id) = (given[0][0].as_str().unwrap(), given[0][1].as_u64().unwrap());
+            assert!((1..=125).contains(&id), "{heard}");
+            let info = &heard["infos"][id.to_string()];
+            assert_eq!(info["name"], "org.lj9da.bridge", "{heard}");
+            assert_eq!(info["unique_id"], uid, "{heard}");
+            assert!(
+                heard["sources"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .any(|s| s.as_u64() == Some(id)),
+                "no NodeStatus from node {id}: {heard}"
+            );
+            chain.stop().await;
+        });
+}

@@ -345,7 +345,7 @@ fn dronecan_commands_the_node_asks_who_it_is_and_hears_its_status() {
     let t0 = Instant::now();
     let mut node = Node::new(
         Identity {
-            node_id: 42,
+            node_id: Some(42),
             name: "org.lj9da.bridge".into(),
             software_major: 0,
             software_minor: 1,

@@ -1312,6 +1312,96 @@ fn csrv_rows(dir: &std::path::Path) -> Vec<(u64, u8, f64)> {
 
 #[test]
 #[ignore = "needs ArduPlane SITL, root for a network namespace: run by .ci/autopilots"]
+fn arduplane_gives_the_bridge_its_node_id() {
+    common::python::python();
+    autopilots::can::enter_network_namespace();
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(4)
+        .enable_all()
+        .build()
+        .unwrap()
+        .block_on(arduplane_allocates());
+}
+
+/// `node_id = "dynamic"`: ArduPlane's allocator (its DroneCAN driver runs one) gives the
+/// bridge's node an id, under which the node then speaks and ArduPlane logs its servos.
+async fn arduplane_allocates() {
+    let _log = bridge_log();
+    let dir = fresh_dir("arduplane-dna");
+    let listener = CanListener::start(0, &[]);
+    let tap = Tap::start(14560);
+    let (ap, _) = arduplane_on_can(&dir, "", 14560);
+    tap.wait_for_autopilot(SECS(60), || ap.console());
+    let example = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/mappings/ardupilot-plane.toml"
+    ))
+    .unwrap();
+    let table = block_after(DRONECAN_PAGE, "<!-- sitl: the bridge's DroneCAN table -->")
+        .replacen("\"can0\"", "\"mcast:0\"", 1)
+        .replacen("node_id = 42", "node_id = \"dynamic\"", 1);
+    assert!(table.contains("\"dynamic\""), "{table}");
+    let text = format!(
+        "{}\n{table}",
+        example.replacen("[bridge]\n", "[bridge]\ncommands = \"dronecan\"\n", 1)
+    );
+    let cfg = Config::parse(&text, "the page's mapping").expect("the mapping is valid");
+    let chain = Chain::start_opts(&text, ChainOptions::default()).await;
+    tap.to_bridge(chain.autopilot_port);
+
+    // ArduPlane's node 10 answers the stages; the last answer carries all 16 bytes and the id.
+    let asked = Instant::now();
+    let (id, allocator) = loop {
+        let done = listener
+            .allocations()
+            .into_iter()
+            .find(|(_, _, a)| a.unique_id.len() == 16 && a.node_id != 0);
+        if let Some((at, source, a)) = done {
+            eprintln!(
+                "node id {} from node {source} after {:?}",
+                a.node_id,
+                at - asked
+            );
+            break (a.node_id, source);
+        }
+        if asked.elapsed() > SECS(30) {
+            let heard = listener.allocations();
+            let last: Vec<_> = heard.iter().rev().take(3).map(|(_, s, a)| (s, a)).collect();
+            panic!(
+                "no node id allocated in 30 s; {} answers heard, the last: {last:?}",
+                heard.len()
+            );
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    };
+    assert_eq!(allocator, 10, "ArduPlane's node allocates");
+    let named = CanListener::start(id, &[ACTUATOR_STATUS, NODE_STATUS]);
+    tokio::time::sleep(SECS(3)).await;
+    let node_status = named.node_transfers_since(NODE_STATUS.id, asked).len();
+    assert!(
+        node_status >= 2,
+        "{node_status} NodeStatus from node {id} in 3 s"
+    );
+    for s in &cfg.servos {
+        let n = named
+            .node_transfers_since(ACTUATOR_STATUS.id, asked)
+            .iter()
+            .filter(|(_, p)| {
+                decode_actuator_status(p).is_some_and(|a| a.actuator_id == s.dronecan_id)
+            })
+            .count();
+        assert!(
+            n >= 15,
+            "{}: {n} actuator Status from node {id} in 3 s",
+            s.name
+        );
+    }
+    drop(ap);
+    chain.stop().await;
+}
+
+#[test]
+#[ignore = "needs ArduPlane SITL, root for a network namespace: run by .ci/autopilots"]
 fn arduplane_drives_the_servos_over_dronecan() {
     // pymavlink (the ground station, the log's reader) installed first: the namespace has no
     // way out to PyPI.
@@ -1336,7 +1426,9 @@ async fn arduplane_over_dronecan() {
     .expect("the page's [dronecan] table is valid")
     .dronecan
     .unwrap()
-    .node_id;
+    .node_id
+    .fixed()
+    .expect("the page's node id is static");
     let listener = CanListener::start(node_id, &[ACTUATOR_STATUS, NODE_STATUS]);
     let tap = Tap::start(14560);
     let (ap, _) = arduplane_on_can(&dir, "", 14560);

@@ -7,7 +7,7 @@
 //! both.
 
 use super::error::{ConfigError, Scope};
-use super::raw::RawDroneCan;
+use super::raw::{RawDroneCan, RawNodeId};
 use super::servo::UnitlessLaw;
 use std::fmt;
 
@@ -41,13 +41,42 @@ impl fmt::Display for CanInterface {
     }
 }
 
+/// The node's id: set in the mapping, or asked of the bus's allocator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NodeId {
+    /// `node_id = 42`: 1–125.
+    Static(u8),
+    /// `node_id = "dynamic"`: dynamic node id allocation (ArduPilot runs an allocator on each
+    /// DroneCAN driver); the node says nothing but its requests until it has one.
+    Dynamic,
+}
+
+impl NodeId {
+    /// The id, where the mapping sets it.
+    pub fn fixed(self) -> Option<u8> {
+        match self {
+            NodeId::Static(n) => Some(n),
+            NodeId::Dynamic => None,
+        }
+    }
+}
+
+impl fmt::Display for NodeId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            NodeId::Static(n) => write!(f, "{n}"),
+            NodeId::Dynamic => f.write_str("dynamic"),
+        }
+    }
+}
+
 /// The `[dronecan]` table.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DroneCanConfig {
     /// `interface = "can0"` or `"mcast:0"`.
     pub interface: CanInterface,
-    /// The node's id, 1–125.
-    pub node_id: u8,
+    /// The node's id: 1–125, or dynamic.
+    pub node_id: NodeId,
     /// What an UNITLESS command means (default ArduPilot's pulse).
     pub unitless: UnitlessLaw,
     /// Each servo's actuator Status per second (default 10).
@@ -58,20 +87,24 @@ impl DroneCanConfig {
     pub(crate) fn from_raw(raw: &RawDroneCan, scope: &Scope<'_>) -> Result<Self, ConfigError> {
         let interface = interface(raw.interface.get_ref())
             .map_err(|r| scope.error_on(&raw.interface, "interface", r))?;
-        let node_id = u8::try_from(*raw.node_id.get_ref())
-            .ok()
-            .filter(|n| NODE_IDS.contains(n))
-            .ok_or_else(|| {
-                scope.error_on(
-                    &raw.node_id,
-                    "node_id",
+        let node_id = match raw.node_id.get_ref() {
+            RawNodeId::Number(n) => u8::try_from(*n)
+                .ok()
+                .filter(|n| NODE_IDS.contains(n))
+                .map(NodeId::Static)
+                .ok_or_else(|| {
                     format!(
-                        "{} is outside 1–125 (0 is no id; 126 and 127 are kept for tools); give \
-                         the bridge an id no other node on the bus has",
-                        raw.node_id.get_ref()
-                    ),
-                )
-            })?;
+                        "{n} is outside 1–125 (0 is no id; 126 and 127 are kept for tools); give \
+                         the bridge an id no other node on the bus has, or \"dynamic\""
+                    )
+                }),
+            RawNodeId::Text(t) if t.trim().eq_ignore_ascii_case("dynamic") => Ok(NodeId::Dynamic),
+            RawNodeId::Text(t) => Err(format!(
+                "\"{t}\" is not a node id: a number 1–125, or \"dynamic\" to ask the bus's \
+                 allocator (ArduPilot runs one)"
+            )),
+        }
+        .map_err(|r| scope.error_on(&raw.node_id, "node_id", r))?;
         let unitless = match &raw.unitless {
             None => UnitlessLaw::default(),
             Some(v) => match v.get_ref().trim().to_ascii_lowercase().as_str() {
@@ -181,12 +214,14 @@ mod tests {
         let c = parse("[dronecan]\ninterface = \"can0\"\nnode_id = 42\n").unwrap();
         let d = c.dronecan.unwrap();
         assert_eq!(d.interface, CanInterface::SocketCan("can0".into()));
-        assert_eq!(d.node_id, 42);
+        assert_eq!(d.node_id, NodeId::Static(42));
         assert_eq!(d.unitless, UnitlessLaw::ArduPilotPulse);
         assert_eq!(d.status_hz, 10.0);
         assert_eq!(c.servos[0].dronecan_id, 3);
         assert_eq!(c.bridge.commands, crate::config::CommandSource::Mavlink);
         assert!(parse("").unwrap().dronecan.is_none());
+        let dynamic = parse("[dronecan]\ninterface = \"can0\"\nnode_id = \"Dynamic\"\n").unwrap();
+        assert_eq!(dynamic.dronecan.unwrap().node_id, NodeId::Dynamic);
     }
 
     #[test]
@@ -228,6 +263,16 @@ mod tests {
                 "1–50",
             ),
             ("[dronecan]\nnode_id = 9\n", "interface", "interface"),
+            (
+                "[dronecan]\ninterface = \"can0\"\nnode_id = \"auto\"\n",
+                "node_id",
+                "\"auto\" is not a node id",
+            ),
+            (
+                "[dronecan]\ninterface = \"can0\"\nnode_id = 4.5\n",
+                "node_id",
+                "node_id",
+            ),
         ];
         for (extra, key, reason) in cases {
             let e = parse(extra).expect_err(extra);

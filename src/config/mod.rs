@@ -28,7 +28,7 @@
 //! | `[bridge]` | `on_exit` | `"hold"` | `"hold"`, `"off"` or `"brake"` when the bridge stops |
 //! | | `while_safe` | `"hold"` | `"hold"`, `"off"` or `"brake"` for a servo off ArduPilot's `BRD_SAFETY_MASK` while its safety switch is on |
 //! | | `commands` | `"mavlink"` | where the goals come from: `"mavlink"` (outputs, DO_SET_SERVO) or `"dronecan"` (ArrayCommand; needs `[dronecan]`) |
-//! | `[dronecan]` | `interface`, `node_id` | (required) | `"can0"` (SocketCAN) or `"mcast:N"` (ArduPilot SITL's multicast CAN); the node's id, 1–125 |
+//! | `[dronecan]` | `interface`, `node_id` | (required) | `"can0"` (SocketCAN) or `"mcast:N"` (ArduPilot SITL's multicast CAN); the node's id, 1–125, or `"dynamic"` (asked of the bus's allocator) |
 //! | | `unitless` | `"ardupilot"` | what an UNITLESS command means: ArduPilot's pulse, or `"normalized"` (±1 ↔ ±25 mm) |
 //! | | `status_hz` | 10 | each servo's actuator Status per second, 1–50 |
 //! | `[[bus]]` | `name`, `port` | (required) | the bus's name and serial port |
@@ -73,7 +73,7 @@ pub mod warnings;
 
 pub use bridge::{BridgeSection, CommandSource, ForceAction};
 pub use bus::{BusSection, TelemetryRate};
-pub use dronecan::{CanInterface, DroneCanConfig};
+pub use dronecan::{CanInterface, DroneCanConfig, NodeId};
 pub use error::{ConfigError, Location};
 pub use mavlink::{MavlinkConfig, Quantity, Source, TelemetryConfig};
 pub use record::RecordSection;

@@ -64,9 +64,38 @@ pub(crate) struct RawBridge {
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawDroneCan {
     pub interface: Spanned<String>,
-    pub node_id: Spanned<i64>,
+    pub node_id: Spanned<RawNodeId>,
     pub unitless: Option<Spanned<String>>,
     pub status_hz: Option<Spanned<f64>>,
+}
+
+/// `node_id = 42` or `node_id = "dynamic"`.
+#[derive(Debug)]
+pub(crate) enum RawNodeId {
+    Number(i64),
+    Text(String),
+}
+
+impl<'de> Deserialize<'de> for RawNodeId {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl serde::de::Visitor<'_> for Visitor {
+            type Value = RawNodeId;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a node id 1–125, or \"dynamic\"")
+            }
+            fn visit_i64<E>(self, n: i64) -> Result<RawNodeId, E> {
+                Ok(RawNodeId::Number(n))
+            }
+            fn visit_u64<E>(self, n: u64) -> Result<RawNodeId, E> {
+                Ok(RawNodeId::Number(i64::try_from(n).unwrap_or(i64::MAX)))
+            }
+            fn visit_str<E>(self, t: &str) -> Result<RawNodeId, E> {
+                Ok(RawNodeId::Text(t.to_string()))
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
 }
 
 #[derive(Debug, Deserialize)]

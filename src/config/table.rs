@@ -67,12 +67,17 @@ pub(super) fn resolved_table(config: &Config) -> String {
     ));
     let commands = match (&config.dronecan, config.bridge.commands) {
         (Some(d), super::CommandSource::DroneCan) => format!(
-            "goals from DroneCAN ArrayCommand on {} (node {}, UNITLESS as {:?}, actuator Status {} Hz)",
-            d.interface, d.node_id, d.unitless, d.status_hz
+            "goals from DroneCAN ArrayCommand on {} ({}, UNITLESS as {:?}, actuator Status {} Hz)",
+            d.interface,
+            node_text(d.node_id),
+            d.unitless,
+            d.status_hz
         ),
         (Some(d), super::CommandSource::Mavlink) => format!(
-            "goals from MAVLink; DroneCAN node {} on {} reports only (actuator Status {} Hz)",
-            d.node_id, d.interface, d.status_hz
+            "goals from MAVLink; DroneCAN {} on {} reports only (actuator Status {} Hz)",
+            node_text(d.node_id),
+            d.interface,
+            d.status_hz
         ),
         (None, _) => "goals from MAVLink".to_string(),
     };
@@ -186,6 +191,14 @@ fn aligned(rows: &[Vec<String>]) -> String {
         out.push('\n');
     }
     out
+}
+
+/// The DroneCAN node's id as the table says it.
+fn node_text(id: super::NodeId) -> String {
+    match id {
+        super::NodeId::Static(n) => format!("node {n}"),
+        super::NodeId::Dynamic => "node with an id from the bus's allocator".into(),
+    }
 }
 
 #[cfg(test)]

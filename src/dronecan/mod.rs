@@ -13,11 +13,13 @@
 //! - [`mcast`]: ArduPilot SITL's CAN bus over multicast UDP, a datagram per frame (the test
 //!   transport; SocketCAN is the aircraft's).
 //! - [`node`]: a node on those: ArrayCommand's commands out of the frames, GetNodeInfo
-//!   answered, NodeStatus once a second, its transfers numbered.
+//!   answered, NodeStatus once a second, its transfers numbered; its id static or asked of an
+//!   allocator ([`allocation`], dynamic node id allocation's client).
 //!
 //! Written from the DroneCAN specification and checked against the `dronecan` package's own
 //! encoder and decoder (`tests/dronecan_peer.rs`). Uses nothing else of the crate.
 
+pub mod allocation;
 pub mod bits;
 pub mod crc;
 pub mod float16;

@@ -6,6 +6,7 @@
 //! What the commands mean for a servo, and what the node's health is, are the caller's: this
 //! module knows no servo.
 
+use super::allocation::{self, ALLOCATION, Allocatee};
 use super::frame::{CanFrame, CanId, Kind};
 use super::messages::{
     self, ACTUATOR_STATUS, ARRAY_COMMAND, ActuatorStatus, Command, DataType, GET_NODE_INFO, Health,
@@ -26,8 +27,8 @@ const PRIORITY_LOW: u8 = 30;
 /// Who the node is: what GetNodeInfo answers.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Identity {
-    /// 1–127.
-    pub node_id: u8,
+    /// 1–127, or `None`: asked of an allocator on the bus (see [`super::allocation`]).
+    pub node_id: Option<u8>,
     /// Reverse-domain name, e.g. `org.lj9da.bridge`.
     pub name: String,
     pub software_major: u8,
@@ -76,6 +77,10 @@ pub struct Commands {
 #[derive(Debug)]
 pub struct Node {
     identity: Identity,
+    /// The node's id: the identity's, or the allocator's once it has given one.
+    id: Option<u8>,
+    /// Asking for an id, until one is given.
+    allocatee: Option<Allocatee>,
     started: Instant,
     next_status: Instant,
     health: Health,
@@ -90,7 +95,13 @@ pub struct Node {
 impl Node {
     /// A node started at `now`: its first NodeStatus is due at once.
     pub fn new(identity: Identity, now: Instant) -> Self {
+        let allocatee = identity
+            .node_id
+            .is_none()
+            .then(|| Allocatee::new(identity.unique_id, 0, 0, now));
         Node {
+            id: identity.node_id,
+            allocatee,
             identity,
             started: now,
             next_status: now,
@@ -114,16 +125,26 @@ impl Node {
         &self.refused
     }
 
+    /// The node's id: `None` while an allocator has not given one yet.
+    pub fn node_id(&self) -> Option<u8> {
+        self.id
+    }
+
     /// A frame received at `now`: the ArrayCommand it completes, if any. A GetNodeInfo request
-    /// to this node is answered (see [`Node::pop_frame`]); other types are ignored.
+    /// to this node is answered (see [`Node::pop_frame`]); while the node asks for an id, the
+    /// Allocation messages go to its [`Allocatee`]; other types are ignored.
     pub fn handle_frame(&mut self, frame: &CanFrame, now: Instant) -> Option<Commands> {
-        let own = self.identity.node_id;
+        let own = self.id;
+        let allocating = self.allocatee.is_some();
         let wanted = |id: &CanId| match id.kind {
             Kind::Message if id.data_type_id == ARRAY_COMMAND.id && id.source != 0 => {
                 Some(ARRAY_COMMAND.signature)
             }
+            Kind::Message if allocating && id.data_type_id == ALLOCATION.id => {
+                Some(ALLOCATION.signature)
+            }
             Kind::Request { destination }
-                if destination == own && id.data_type_id == GET_NODE_INFO.id =>
+                if Some(destination) == own && id.data_type_id == GET_NODE_INFO.id =>
             {
                 Some(GET_NODE_INFO.signature)
             }
@@ -138,6 +159,10 @@ impl Node {
             }
         };
         match transfer.id.kind {
+            Kind::Message if transfer.id.data_type_id == ALLOCATION.id => {
+                self.allocation(&transfer, now);
+                None
+            }
             Kind::Message => match messages::decode_array_command(&transfer.payload) {
                 Some(commands) => Some(Commands {
                     source: transfer.id.source,
@@ -154,6 +179,22 @@ impl Node {
                 None
             }
             Kind::Response { .. } => None,
+        }
+    }
+
+    fn allocation(&mut self, transfer: &Transfer, now: Instant) {
+        let (Some(allocatee), Some(message)) = (
+            self.allocatee.as_mut(),
+            allocation::decode(&transfer.payload),
+        ) else {
+            return;
+        };
+        if let Some(id) = allocatee.handle(transfer.id.source, &message, now) {
+            self.id = Some(id);
+            self.allocatee = None;
+            // Heard at once: the allocator (ArduPilot's) asks for its node info on its first
+            // NodeStatus.
+            self.next_status = now;
         }
     }
 
@@ -179,6 +220,9 @@ impl Node {
             unique_id: self.identity.unique_id,
             name: self.identity.name.clone(),
         };
+        let Some(own) = self.id else {
+            return;
+        };
         let response = Transfer {
             id: CanId {
                 priority: request.id.priority,
@@ -186,7 +230,7 @@ impl Node {
                     destination: request.id.source,
                 },
                 data_type_id: GET_NODE_INFO.id,
-                source: self.identity.node_id,
+                source: own,
                 discriminator: 0,
             },
             // A response carries its request's transfer id.
@@ -203,15 +247,30 @@ impl Node {
         self.broadcast(ACTUATOR_STATUS, PRIORITY_STATUS, payload);
     }
 
+    /// A message from this node; dropped while it has no id (an anonymous node sends only its
+    /// Allocation requests).
     fn broadcast(&mut self, ty: DataType, priority: u8, payload: Vec<u8>) {
+        let Some(source) = self.id else {
+            return;
+        };
+        self.send_message(ty, priority, source, payload);
+    }
+
+    fn send_message(&mut self, ty: DataType, priority: u8, source: u8, payload: Vec<u8>) {
         let next = self.transfer_ids.entry((Kind::Message, ty.id)).or_insert(0);
+        // An anonymous frame's discriminator: from its payload's CRC, as libcanard makes it.
+        let discriminator = if source == 0 {
+            (super::crc::add(0xFFFF, &payload) >> 1) & 0x3FFF
+        } else {
+            0
+        };
         let transfer = Transfer {
             id: CanId {
                 priority,
                 kind: Kind::Message,
                 data_type_id: ty.id,
-                source: self.identity.node_id,
-                discriminator: 0,
+                source,
+                discriminator,
             },
             transfer_id: *next,
             payload,
@@ -220,8 +279,15 @@ impl Node {
         self.outgoing.extend(transfer.frames(ty.signature));
     }
 
-    /// What is due at `now`: the NodeStatus once a second.
+    /// What is due at `now`: the NodeStatus once a second; while the node has no id, its
+    /// Allocation requests instead.
     pub fn poll(&mut self, now: Instant) {
+        if let Some(allocatee) = self.allocatee.as_mut() {
+            if let Some(request) = allocatee.poll(now) {
+                self.send_message(ALLOCATION, PRIORITY_LOW, 0, allocation::encode(&request));
+            }
+            return;
+        }
         if now < self.next_status {
             return;
         }
@@ -235,7 +301,10 @@ impl Node {
 
     /// When [`Node::poll`] next has something to do.
     pub fn next_wake(&self) -> Instant {
-        self.next_status
+        match &self.allocatee {
+            Some(a) => a.next_wake().unwrap_or(self.next_status),
+            None => self.next_status,
+        }
     }
 
     /// The next frame to send, oldest first.
@@ -251,7 +320,7 @@ mod tests {
 
     fn identity() -> Identity {
         Identity {
-            node_id: 42,
+            node_id: Some(42),
             name: "org.lj9da.bridge".into(),
             software_major: 0,
             software_minor: 1,
@@ -412,5 +481,81 @@ mod tests {
         assert_eq!(ids.len(), 33);
         assert_eq!((ids[0], ids[31], ids[32]), (0, 31, 0));
         assert_eq!(transfers(&frames, t0, NODE_STATUS)[0].transfer_id, 0);
+    }
+
+    #[test]
+    fn a_node_without_an_id_asks_for_one_and_says_nothing_else_until_given() {
+        let t0 = Instant::now();
+        let uid: [u8; 16] = std::array::from_fn(|i| 0x40 + i as u8);
+        let mut node = Node::new(
+            Identity {
+                node_id: None,
+                unique_id: uid,
+                ..identity()
+            },
+            t0,
+        );
+        assert_eq!(node.node_id(), None);
+        node.send_actuator_status(&ActuatorStatus {
+            actuator_id: 1,
+            position: 0.0,
+            force: 0.0,
+            speed: 0.0,
+            power_rating_pct: 0,
+        });
+        node.poll(t0);
+        assert!(
+            drain(&mut node).is_empty(),
+            "no NodeStatus, no Status, no request yet"
+        );
+        let mut at = node.next_wake();
+        node.poll(at);
+        let frames = drain(&mut node);
+        assert_eq!(frames.len(), 1);
+        let id = CanId::parse(frames[0].id()).unwrap();
+        assert_eq!((id.source, id.kind, id.data_type_id), (0, Kind::Message, 1));
+        assert_ne!(id.discriminator, 0);
+        let request = allocation::decode(&frames[0].data()[..frames[0].data().len() - 1]).unwrap();
+        assert!(request.first_part_of_unique_id);
+        assert_eq!(request.unique_id, uid[..6]);
+
+        // The allocator (ArduPilot's node 10) answers each stage with what it has so far; the
+        // last answer, all 16 bytes, is a multi-frame transfer.
+        let answer = |known: usize, node_id: u8, tid: u8| Transfer {
+            id: CanId {
+                priority: 30,
+                kind: Kind::Message,
+                data_type_id: ALLOCATION.id,
+                source: 10,
+                discriminator: 0,
+            },
+            transfer_id: tid,
+            payload: allocation::encode(&allocation::Allocation {
+                node_id,
+                first_part_of_unique_id: false,
+                unique_id: uid[..known].to_vec(),
+            }),
+        };
+        for (tid, known) in [(0, 6), (1, 12)] {
+            for f in answer(known, 0, tid).frames(ALLOCATION.signature) {
+                assert_eq!(node.handle_frame(&f, at), None);
+            }
+            at = node.next_wake();
+            node.poll(at);
+            let frames = drain(&mut node);
+            assert_eq!(frames.len(), 1, "the next stage");
+            let r = allocation::decode(&frames[0].data()[..frames[0].data().len() - 1]).unwrap();
+            assert!(!r.first_part_of_unique_id);
+            assert_eq!(r.unique_id, uid[known..(known + 6).min(16)]);
+        }
+        for f in answer(16, 99, 2).frames(ALLOCATION.signature) {
+            node.handle_frame(&f, at);
+        }
+        assert_eq!(node.node_id(), Some(99));
+        assert_eq!(node.next_wake(), at, "its first NodeStatus at once");
+        node.poll(at);
+        let status = transfers(&drain(&mut node), at, NODE_STATUS);
+        assert_eq!(status.len(), 1);
+        assert_eq!(status[0].id.source, 99);
     }
 }

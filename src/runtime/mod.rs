@@ -447,7 +447,7 @@ impl Bridge {
                 .expect("a [dronecan] table makes a node");
             let (link, task) = can::spawn(d.interface.clone());
             tasks.push(task);
-            tracing::info!(interface = %d.interface, node_id = d.node_id, commands = %cfg.bridge.commands, "DroneCAN node set up");
+            tracing::info!(interface = %d.interface, node_id = %d.node_id, commands = %cfg.bridge.commands, "DroneCAN node set up");
             CanSide { node, link }
         });
         Ok(Bridge {
@@ -566,10 +566,17 @@ impl Bridge {
                     }
                 }
                 Input::Can(frame, at) => {
-                    if let Some(can) = &mut self.can
-                        && let Some(commands) = can.node.handle_frame(&frame, at)
-                    {
-                        self.core.handle_can_commands(&commands.commands, at);
+                    if let Some(can) = &mut self.can {
+                        let had_id = can.node.node_id().is_some();
+                        if let Some(commands) = can.node.handle_frame(&frame, at) {
+                            self.core.handle_can_commands(&commands.commands, at);
+                        }
+                        if let (false, Some(id)) = (had_id, can.node.node_id()) {
+                            tracing::info!(
+                                node_id = id,
+                                "DroneCAN: node id given by the bus's allocator"
+                            );
+                        }
                     }
                 }
                 Input::Timeout => {

@@ -3,6 +3,7 @@
 //! transfer of the bridge's node it hears.
 
 use super::{Autopilot, block_after};
+use lj9da_bridge::dronecan::allocation::{self, ALLOCATION, Allocation};
 use lj9da_bridge::dronecan::frame::{CanId, Kind};
 use lj9da_bridge::dronecan::messages::{self, ARRAY_COMMAND, Command};
 use lj9da_bridge::dronecan::{mcast, transfer::Reassembler};
@@ -84,6 +85,8 @@ pub struct Heard {
 #[derive(Default)]
 struct State {
     commands: Vec<Heard>,
+    /// Allocators' answers to dynamic node id requests: when, from which node, what.
+    allocations: Vec<(Instant, u8, Allocation)>,
     /// Per data type, the transfers from `node` (the bridge's id) and when.
     from_node: Vec<(Instant, u16, Vec<u8>)>,
 }
@@ -123,6 +126,9 @@ impl CanListener {
                     if id.data_type_id == ARRAY_COMMAND.id && id.source != node {
                         return Some(ARRAY_COMMAND.signature);
                     }
+                    if id.data_type_id == ALLOCATION.id && id.source != 0 {
+                        return Some(ALLOCATION.signature);
+                    }
                     types
                         .iter()
                         .find(|t| t.id == id.data_type_id && id.source == node)
@@ -132,7 +138,11 @@ impl CanListener {
                     continue;
                 };
                 let mut state = s.lock().unwrap();
-                if t.id.data_type_id == ARRAY_COMMAND.id {
+                if t.id.data_type_id == ALLOCATION.id {
+                    if let Some(a) = allocation::decode(&t.payload) {
+                        state.allocations.push((at, t.id.source, a));
+                    }
+                } else if t.id.data_type_id == ARRAY_COMMAND.id {
                     if let Some(commands) = messages::decode_array_command(&t.payload) {
                         state.commands.push(Heard { at, commands });
                     }
@@ -157,6 +167,11 @@ impl CanListener {
             .filter(|h| h.at >= since)
             .cloned()
             .collect()
+    }
+
+    /// The allocators' answers heard so far: when, from which node, what.
+    pub fn allocations(&self) -> Vec<(Instant, u8, Allocation)> {
+        self.state.lock().unwrap().allocations.clone()
     }
 
     /// The bridge's transfers of data type `id` since `since`: when, payload.
