@@ -198,3 +198,50 @@ fn a_servo_whose_actuator_id_stops_coming_takes_its_failsafe_alone() {
         "{texts:?}"
     );
 }
+
+#[test]
+fn a_parameter_changed_moves_the_servo_to_its_last_command_under_the_new_mapping() {
+    let t0 = Instant::now();
+    let text = mapping("dronecan");
+    let mut c = core_on("dronecan", t0);
+    let mut file = lj9da_bridge::config::edit::MappingFile::in_memory(&text, "test.toml").unwrap();
+    c.handle_can_commands(
+        &[pwm(1, 1800.0), pwm(18, 1800.0), pwm(30, 1800.0)],
+        t0 + ms(20),
+    );
+    let before: Vec<(usize, Goal)> = commands(&mut c)
+        .into_iter()
+        .filter(|(i, _)| *i == 0)
+        .collect();
+    assert_eq!(before.len(), 1, "{before:?}");
+    let Goal::Position(p) = before[0].1 else {
+        panic!("{before:?}")
+    };
+    c.handle_message(
+        0,
+        &header((255, 190)),
+        &MavMessage::PARAM_SET(PARAM_SET_DATA {
+            param_value: 1.0,
+            target_system: 7,
+            target_component: 140,
+            param_id: "S1_REV".into(),
+            param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
+        }),
+        t0 + ms(30),
+    );
+    let set = c.poll_param_set().expect("S1_REV is a parameter");
+    let result = file.apply(&set.edits).map_err(|e| e.reason());
+    c.handle_message(0, &header((255, 190)), &sys_status(false), t0 + ms(31));
+    c.param_set_done(&set, result, t0 + ms(31));
+    // Reversed, the same 1800 µs is the mirror of the goal before, at once: no new
+    // ArrayCommand needed.
+    let after: Vec<(usize, Goal)> = commands(&mut c)
+        .into_iter()
+        .filter(|(i, _)| *i == 0)
+        .collect();
+    assert_eq!(
+        after,
+        vec![(0, Goal::Position(MmCenti(-p.0)))],
+        "before {p:?}"
+    );
+}

@@ -137,6 +137,8 @@ pub struct BridgeCore {
     servos: Vec<ServoSlot>,
     /// Latest value of every channel 1–32 from the autopilot.
     channels: [Option<u16>; 33],
+    /// Per servo, the latest DroneCAN command of its actuator id (DroneCAN commanding).
+    can_commands: Vec<Option<can::Command>>,
     last_output_at: Option<Instant>,
     /// No output message at all for the failsafe timeout.
     stream_failsafe: bool,
@@ -215,6 +217,7 @@ impl BridgeCore {
             servos,
             started: now,
             channels: [None; 33],
+            can_commands: vec![None; cfg.servos.len()],
             last_output_at: None,
             stream_failsafe: false,
             stream_ok: false,
@@ -505,6 +508,11 @@ impl BridgeCore {
                 )
             })
             .collect();
+        for (slot, c) in self.can_commands.iter_mut().zip(&wanted) {
+            if let Some(c) = c {
+                *slot = Some(**c);
+            }
+        }
         let ids: Vec<u8> = self.cfg.servos.iter().map(|s| s.dronecan_id).collect();
         self.say_missing(&carried, &ids, now);
         self.carried(&carried, &ids, now);
@@ -761,7 +769,8 @@ impl BridgeCore {
 
     /// How a change from [`BridgeCore::poll_param_set`] went: the mapping file as it now
     /// reads, or why it refused the change. An accepted change takes effect at once: a servo
-    /// that is not in failsafe moves to its channel's latest value under the new mapping.
+    /// that is not in failsafe moves to its latest command under the new mapping (its
+    /// channel's latest value, or with DroneCAN commanding its actuator id's latest command).
     pub fn param_set_done(&mut self, set: &ParamSet, result: Result<Config, String>, now: Instant) {
         let before = self.cfg.clone();
         let result = result.map(|changed| {
@@ -801,8 +810,14 @@ impl BridgeCore {
             if slot.failsafe || slot.override_latch.is_some() {
                 continue;
             }
-            if let Some(us) = self.channels[usize::from(channel)] {
-                let command = match self.cfg.servos[i].map_pwm(us) {
+            let servo = &self.cfg.servos[i];
+            let mapped = match (&self.cfg.dronecan, self.dronecan_commands()) {
+                (Some(d), true) => self.can_commands[i]
+                    .map(|c| servo.map_can_command(c.command_type, c.value, d.unitless)),
+                _ => self.channels[usize::from(channel)].map(|us| servo.map_pwm(us)),
+            };
+            if let Some(position) = mapped {
+                let command = match position {
                     Some(position) => Goal::Position(position),
                     None => Goal::Hold,
                 };
