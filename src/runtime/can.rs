@@ -102,10 +102,26 @@ async fn run(
     dropped: &AtomicU64,
 ) -> Option<io::Error> {
     let mut send_error: Option<String> = None;
+    let mut bus: Option<BusNews> = None;
     loop {
         tokio::select! {
             frame = port.recv() => match frame {
-                Ok(Some(frame)) => {
+                Ok(Received::Bus(news)) => {
+                    // Said when the bus's state changes, not per error frame.
+                    if bus != Some(news) {
+                        if news.is_trouble() {
+                            tracing::warn!("DroneCAN: {news}");
+                        } else {
+                            tracing::info!("DroneCAN: {news}");
+                        }
+                        bus = Some(news);
+                    }
+                }
+                Ok(Received::Frame(frame)) => {
+                    if bus.is_some_and(BusNews::is_trouble) {
+                        tracing::info!("DroneCAN: frames come in again");
+                        bus = None;
+                    }
                     if received.try_send((frame, Instant::now())).is_err() {
                         if received.is_closed() {
                             return None;
@@ -113,7 +129,7 @@ async fn run(
                         dropped.fetch_add(1, Ordering::Relaxed);
                     }
                 }
-                Ok(None) => {}
+                Ok(Received::Other) => {}
                 Err(e) => return Some(e),
             },
             frame = to_send.recv() => {
@@ -197,9 +213,9 @@ impl Port {
         }
     }
 
-    /// The next frame; `None` for something that is not a DroneCAN frame (an error frame,
-    /// a standard id, CAN FD, a stranger's datagram).
-    async fn recv(&self) -> io::Result<Option<CanFrame>> {
+    /// The next frame, or what an error frame says of the bus; `Ok(Received::Other)` for
+    /// something that is neither (a standard id, CAN FD, a stranger's datagram).
+    async fn recv(&self) -> io::Result<Received> {
         match self {
             Port::SocketCan(fd) => loop {
                 let mut guard = fd.readable().await?;
@@ -222,14 +238,17 @@ impl Port {
                 let Ok(n) = n else { continue };
                 let n = n?;
                 if n < std::mem::size_of::<libc::can_frame>() {
-                    return Ok(None);
+                    return Ok(Received::Other);
                 }
-                return Ok(from_socketcan(&raw));
+                if let Some(news) = bus_news(&raw) {
+                    return Ok(Received::Bus(news));
+                }
+                return Ok(from_socketcan(&raw).map_or(Received::Other, Received::Frame));
             },
             Port::Multicast { inbound, .. } => {
                 let mut buf = [0u8; 128];
                 let n = inbound.recv(&mut buf).await?;
-                Ok(mcast::decode(&buf[..n]).ok())
+                Ok(mcast::decode(&buf[..n]).map_or(Received::Other, Received::Frame))
             }
         }
     }
@@ -268,7 +287,8 @@ impl Port {
     }
 }
 
-/// A raw CAN socket bound to interface `name`, non-blocking, error frames included.
+/// A raw CAN socket bound to interface `name`, non-blocking, with the error frames that tell of
+/// bus-off, the controller's error state, a restart and missing acknowledgements.
 fn socketcan(name: &str) -> io::Result<OwnedFd> {
     let index = nix::net::if_::if_nametoindex(name).map_err(io::Error::from)?;
     // SAFETY: a plain socket(2) call; the descriptor is owned at once.
@@ -298,7 +318,97 @@ fn socketcan(name: &str) -> io::Result<OwnedFd> {
     if r < 0 {
         return Err(io::Error::last_os_error());
     }
+    let errors: libc::can_err_mask_t =
+        libc::CAN_ERR_BUSOFF | libc::CAN_ERR_CRTL | libc::CAN_ERR_RESTARTED | libc::CAN_ERR_ACK;
+    // SAFETY: the option's value is a can_err_mask_t of its own size.
+    let r = unsafe {
+        libc::setsockopt(
+            fd.as_raw_fd(),
+            libc::SOL_CAN_RAW,
+            libc::CAN_RAW_ERR_FILTER,
+            (&raw const errors).cast(),
+            std::mem::size_of::<libc::can_err_mask_t>() as libc::socklen_t,
+        )
+    };
+    if r < 0 {
+        return Err(io::Error::last_os_error());
+    }
     Ok(fd)
+}
+
+/// What the interface gave.
+enum Received {
+    Frame(CanFrame),
+    Bus(BusNews),
+    Other,
+}
+
+/// What the adapter's error frames say of the bus (those of CAN_RAW_ERR_FILTER's mask above).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum BusNews {
+    BusOff,
+    Restarted,
+    Passive,
+    Warning,
+    Active,
+    NoAck,
+}
+
+impl BusNews {
+    fn is_trouble(self) -> bool {
+        !matches!(self, BusNews::Restarted | BusNews::Active)
+    }
+}
+
+impl std::fmt::Display for BusNews {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            BusNews::BusOff => {
+                "the CAN adapter went bus-off (too many errors: a wrong bit rate, a short or open \
+                 wire, a babbling node); it sends and hears nothing until restarted \
+                 (systemd-networkd's RestartSec=, or `ip link set can0 type can restart-ms 100`)"
+            }
+            BusNews::Restarted => "the CAN adapter restarted after bus-off",
+            BusNews::Passive => {
+                "the CAN adapter is error-passive: many errors on the bus (check the bit rate, \
+                 the termination, the wiring)"
+            }
+            BusNews::Warning => "the CAN adapter counts errors on the bus (error warning)",
+            BusNews::Active => "the CAN adapter is error-active again",
+            BusNews::NoAck => {
+                "no node acknowledges the bridge's frames: is the autopilot on and on this bus, \
+                 and the bus terminated?"
+            }
+        })
+    }
+}
+
+/// The news of an error frame (`None` for any other frame), the worst it carries.
+fn bus_news(raw: &libc::can_frame) -> Option<BusNews> {
+    let id = raw.can_id;
+    if id & libc::CAN_ERR_FLAG == 0 {
+        return None;
+    }
+    let controller = i32::from(raw.data[1]);
+    Some(if id & libc::CAN_ERR_BUSOFF != 0 {
+        BusNews::BusOff
+    } else if id & libc::CAN_ERR_RESTARTED != 0 {
+        BusNews::Restarted
+    } else if id & libc::CAN_ERR_CRTL != 0
+        && controller & (libc::CAN_ERR_CRTL_RX_PASSIVE | libc::CAN_ERR_CRTL_TX_PASSIVE) != 0
+    {
+        BusNews::Passive
+    } else if id & libc::CAN_ERR_CRTL != 0
+        && controller & (libc::CAN_ERR_CRTL_RX_WARNING | libc::CAN_ERR_CRTL_TX_WARNING) != 0
+    {
+        BusNews::Warning
+    } else if id & libc::CAN_ERR_CRTL != 0 && controller & libc::CAN_ERR_CRTL_ACTIVE != 0 {
+        BusNews::Active
+    } else if id & libc::CAN_ERR_ACK != 0 {
+        BusNews::NoAck
+    } else {
+        return None;
+    })
 }
 
 /// A DroneCAN frame from a SocketCAN one: extended, data, not an error or remote frame.
@@ -358,6 +468,48 @@ mod tests {
         let mut error = raw;
         error.can_id |= libc::CAN_ERR_FLAG;
         assert_eq!(from_socketcan(&error), None);
+    }
+
+    #[test]
+    fn an_error_frame_says_what_became_of_the_bus() {
+        let frame = |id: u32, controller: i32| {
+            // SAFETY: can_frame is plain data.
+            let mut raw: libc::can_frame = unsafe { std::mem::zeroed() };
+            raw.can_id = libc::CAN_ERR_FLAG | id;
+            raw.can_dlc = 8;
+            raw.data[1] = controller as u8;
+            raw
+        };
+        assert_eq!(
+            bus_news(&frame(libc::CAN_ERR_BUSOFF, 0)),
+            Some(BusNews::BusOff)
+        );
+        assert_eq!(
+            bus_news(&frame(libc::CAN_ERR_CRTL, libc::CAN_ERR_CRTL_TX_PASSIVE)),
+            Some(BusNews::Passive)
+        );
+        assert_eq!(
+            bus_news(&frame(libc::CAN_ERR_CRTL, libc::CAN_ERR_CRTL_RX_WARNING)),
+            Some(BusNews::Warning)
+        );
+        assert_eq!(
+            bus_news(&frame(libc::CAN_ERR_CRTL, libc::CAN_ERR_CRTL_ACTIVE)),
+            Some(BusNews::Active)
+        );
+        assert_eq!(
+            bus_news(&frame(libc::CAN_ERR_RESTARTED, 0)),
+            Some(BusNews::Restarted)
+        );
+        assert_eq!(bus_news(&frame(libc::CAN_ERR_ACK, 0)), Some(BusNews::NoAck));
+        // Bus-off outweighs what else the same frame says.
+        assert_eq!(
+            bus_news(&frame(libc::CAN_ERR_BUSOFF | libc::CAN_ERR_ACK, 0)),
+            Some(BusNews::BusOff)
+        );
+        let data = to_socketcan(&CanFrame::new(0x0803_F20A, &[0xC0]).unwrap());
+        assert_eq!(bus_news(&data), None);
+        assert!(BusNews::BusOff.to_string().contains("bus-off"));
+        assert!(!BusNews::Active.is_trouble() && BusNews::NoAck.is_trouble());
     }
 
     #[tokio::test]
