@@ -1310,9 +1310,9 @@ fn csrv_rows(dir: &std::path::Path) -> Vec<(u64, u8, f64)> {
         .collect()
 }
 
-#[test]
-#[ignore = "needs ArduPlane SITL, root for a network namespace: run by .ci/autopilots"]
-fn arduplane_gives_the_bridge_its_node_id() {
+/// A DroneCAN test: pymavlink (the ground station, the log's reader) installed first, as the
+/// namespace has no way out to PyPI; then `test` in a network namespace of its own.
+fn in_can_namespace(test: impl std::future::Future<Output = ()>) {
     common::python::python();
     autopilots::can::enter_network_namespace();
     tokio::runtime::Builder::new_multi_thread()
@@ -1320,7 +1320,28 @@ fn arduplane_gives_the_bridge_its_node_id() {
         .enable_all()
         .build()
         .unwrap()
-        .block_on(arduplane_allocates());
+        .block_on(test);
+}
+
+/// The shipped example mapping commanded over DroneCAN, with the page's `[dronecan]` table
+/// (`table`) on SITL's `mcast:0`.
+fn example_on_can(table: &str) -> String {
+    let example = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/mappings/ardupilot-plane.toml"
+    ))
+    .unwrap();
+    format!(
+        "{}\n{}",
+        example.replacen("[bridge]\n", "[bridge]\ncommands = \"dronecan\"\n", 1),
+        table.replacen("\"can0\"", "\"mcast:0\"", 1)
+    )
+}
+
+#[test]
+#[ignore = "needs ArduPlane SITL, root for a network namespace: run by .ci/autopilots"]
+fn arduplane_gives_the_bridge_its_node_id() {
+    in_can_namespace(arduplane_allocates());
 }
 
 /// `node_id = "dynamic"`: ArduPlane's allocator (its DroneCAN driver runs one) gives the
@@ -1332,19 +1353,13 @@ async fn arduplane_allocates() {
     let tap = Tap::start(14560);
     let (ap, _) = arduplane_on_can(&dir, "", 14560);
     tap.wait_for_autopilot(SECS(60), || ap.console());
-    let example = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/mappings/ardupilot-plane.toml"
-    ))
-    .unwrap();
-    let table = block_after(DRONECAN_PAGE, "<!-- sitl: the bridge's DroneCAN table -->")
-        .replacen("\"can0\"", "\"mcast:0\"", 1)
-        .replacen("node_id = 42", "node_id = \"dynamic\"", 1);
-    assert!(table.contains("\"dynamic\""), "{table}");
-    let text = format!(
-        "{}\n{table}",
-        example.replacen("[bridge]\n", "[bridge]\ncommands = \"dronecan\"\n", 1)
+    let table = block_after(DRONECAN_PAGE, "<!-- sitl: the bridge's DroneCAN table -->").replacen(
+        "node_id = 42",
+        "node_id = \"dynamic\"",
+        1,
     );
+    assert!(table.contains("\"dynamic\""), "{table}");
+    let text = example_on_can(&table);
     let cfg = Config::parse(&text, "the page's mapping").expect("the mapping is valid");
     let chain = Chain::start_opts(&text, ChainOptions::default()).await;
     tap.to_bridge(chain.autopilot_port);
@@ -1403,16 +1418,7 @@ async fn arduplane_allocates() {
 #[test]
 #[ignore = "needs ArduPlane SITL, root for a network namespace: run by .ci/autopilots"]
 fn arduplane_drives_the_servos_over_dronecan() {
-    // pymavlink (the ground station, the log's reader) installed first: the namespace has no
-    // way out to PyPI.
-    common::python::python();
-    autopilots::can::enter_network_namespace();
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(4)
-        .enable_all()
-        .build()
-        .unwrap()
-        .block_on(arduplane_over_dronecan());
+    in_can_namespace(arduplane_over_dronecan());
 }
 
 async fn arduplane_over_dronecan() {
@@ -1436,18 +1442,14 @@ async fn arduplane_over_dronecan() {
 
     // The shipped example (its four surfaces on outputs 1, 2, 4 and 5, the page's
     // CAN_D1_UC_SRV_BM), commanded over DroneCAN.
-    let example = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/mappings/ardupilot-plane.toml"
-    ))
-    .unwrap();
     // SITL's DroneCAN thread leaves gaps of 400-600 ms between ArrayCommands at times (see
     // docs/dronecan.md): a longer failsafe timeout, so that the sweep is not cut by the failsafe
     // (which the kill below checks).
-    let text = example
-        .replacen("[bridge]\n", "[bridge]\ncommands = \"dronecan\"\n", 1)
-        .replacen("failsafe_timeout_ms = 500", "failsafe_timeout_ms = 1000", 1);
-    let text = format!("{text}\n{}", table.replacen("\"can0\"", "\"mcast:0\"", 1));
+    let text = example_on_can(&table).replacen(
+        "failsafe_timeout_ms = 500",
+        "failsafe_timeout_ms = 1000",
+        1,
+    );
     let cfg = Config::parse(&text, "the page's mapping").expect("the page's mapping is valid");
     let chain = Chain::start_opts(&text, ChainOptions::default()).await;
     tap.to_bridge(chain.autopilot_port);
