@@ -9,6 +9,10 @@
 //!   `speed` unknown (NaN: the servo measures neither), `power_rating_pct` unknown (127). A
 //!   servo with no position read yet sends nothing. ArduPilot logs each as a CSRV row whose
 //!   `Pos` is the position in degrees (it reads it as an angle): mm = Pos × π / 180 × 1000.
+//! - each servo's temperature as `uavcan.equipment.device.Temperature` once a second,
+//!   `device_id` its `dronecan_id`, in kelvin, `error_flags` overheating while it is over its
+//!   temperature alarm or limit. ArduPilot logs it (TEMP rows) for a temperature sensor of
+//!   `TEMPn_TYPE` 6 (DroneCAN) whose `TEMPn_MSG_ID` is that id.
 //! - NodeStatus once a second: health OK while every servo answers without alarm; WARNING while
 //!   one is starting, stale, degraded, stalled or over its temperature alarm; ERROR while one
 //!   is offline, in fault, or over its temperature limit. Its vendor-specific status code has
@@ -18,7 +22,9 @@
 
 use crate::config::Config;
 use crate::dronecan::frame::CanFrame;
-use crate::dronecan::messages::{ActuatorStatus, Health, POWER_RATING_UNKNOWN};
+use crate::dronecan::messages::{
+    ActuatorStatus, DeviceTemperature, Health, POWER_RATING_UNKNOWN, TEMPERATURE_OVERHEATING,
+};
 use crate::dronecan::node::{Commands, Identity, Node, Refused};
 use crate::mavlink::{ServoReport, ServoState};
 use std::time::{Duration, Instant};
@@ -34,7 +40,11 @@ pub struct CanNode {
     ids: Vec<u8>,
     period: Duration,
     next_status: Instant,
+    next_temperature: Instant,
 }
+
+/// How often each servo's temperature goes out.
+pub const TEMPERATURE_PERIOD: Duration = Duration::from_secs(1);
 
 impl CanNode {
     /// The node of `cfg`'s `[dronecan]` table (`None` without one), started at `now`;
@@ -61,6 +71,7 @@ impl CanNode {
             ids: cfg.servos.iter().map(|s| s.dronecan_id).collect(),
             period: Duration::from_secs_f64(1.0 / d.status_hz),
             next_status: now,
+            next_temperature: now,
         })
     }
 
@@ -96,12 +107,30 @@ impl CanNode {
                 });
             }
         }
+        if now >= self.next_temperature {
+            while self.next_temperature <= now {
+                self.next_temperature += TEMPERATURE_PERIOD;
+            }
+            for (id, r) in self.ids.iter().zip(reports) {
+                let Some(celsius) = r.temperature_c else {
+                    continue;
+                };
+                let hot = r.temperature_alarm || r.temperature_error;
+                self.node.send_device_temperature(&DeviceTemperature {
+                    device_id: u16::from(*id),
+                    kelvin: celsius + 273.15,
+                    error_flags: if hot { TEMPERATURE_OVERHEATING } else { 0 },
+                });
+            }
+        }
         self.node.poll(now);
     }
 
     /// When [`CanNode::handle_timeout`] must next be called.
     pub fn poll_timeout(&self) -> Instant {
-        self.next_status.min(self.node.next_wake())
+        self.next_status
+            .min(self.next_temperature)
+            .min(self.node.next_wake())
     }
 
     /// The next frame to send, oldest first.
@@ -157,7 +186,7 @@ pub fn unique_id(machine_id: Option<&str>) -> [u8; 16] {
 mod tests {
     use super::*;
     use crate::dronecan::frame::Kind;
-    use crate::dronecan::messages::{self, ACTUATOR_STATUS, NODE_STATUS};
+    use crate::dronecan::messages::{self, ACTUATOR_STATUS, DEVICE_TEMPERATURE, NODE_STATUS};
     use crate::dronecan::transfer::Reassembler;
 
     fn cfg() -> Config {
@@ -220,6 +249,41 @@ mod tests {
             .map(|p| messages::decode_actuator_status(p).unwrap().actuator_id)
             .collect();
         assert_eq!(ids, [1, 7]);
+    }
+
+    #[test]
+    fn each_servo_says_its_temperature_once_a_second_in_kelvin() {
+        let t0 = Instant::now();
+        let mut node = CanNode::new(&cfg(), [1; 16], t0).unwrap();
+        let warm = ServoReport {
+            temperature_c: Some(26.0),
+            ..online(0.0)
+        };
+        let hot = ServoReport {
+            temperature_c: Some(71.0),
+            temperature_alarm: true,
+            ..online(0.0)
+        };
+        node.handle_timeout(t0, &[warm, hot]);
+        let got: Vec<messages::DeviceTemperature> = sent(&mut node, DEVICE_TEMPERATURE, t0)
+            .iter()
+            .map(|p| messages::decode_device_temperature(p).unwrap())
+            .collect();
+        assert_eq!(got.len(), 2, "{got:?}");
+        assert_eq!((got[0].device_id, got[0].error_flags), (1, 0));
+        assert!((got[0].kelvin - 299.15).abs() <= 0.125, "{got:?}");
+        assert_eq!((got[1].device_id, got[1].error_flags), (7, 1));
+        node.handle_timeout(t0 + Duration::from_millis(999), &[warm, hot]);
+        assert!(
+            sent(&mut node, DEVICE_TEMPERATURE, t0).is_empty(),
+            "before 1 s"
+        );
+        node.handle_timeout(t0 + TEMPERATURE_PERIOD, &[warm, ServoReport::default()]);
+        assert_eq!(
+            sent(&mut node, DEVICE_TEMPERATURE, t0).len(),
+            1,
+            "a servo with no reading says nothing"
+        );
     }
 
     #[test]

@@ -6,9 +6,10 @@
 #[path = "common/python.rs"]
 mod python;
 
+use lj9da_bridge::dronecan::allocation::{self, ALLOCATION};
 use lj9da_bridge::dronecan::messages::{
-    self, ACTUATOR_STATUS, ARRAY_COMMAND, ActuatorStatus, Command, CommandType, DataType,
-    GET_NODE_INFO, Health, Mode, NODE_STATUS, NodeInfo, NodeStatus,
+    self, ACTUATOR_STATUS, ARRAY_COMMAND, ActuatorStatus, Command, CommandType, DEVICE_TEMPERATURE,
+    DataType, DeviceTemperature, GET_NODE_INFO, Health, Mode, NODE_STATUS, NodeInfo, NodeStatus,
 };
 use lj9da_bridge::dronecan::node::{Identity, Node};
 use lj9da_bridge::dronecan::{CanFrame, CanId, Kind, Reassembler, Transfer};
@@ -40,6 +41,10 @@ def fields(payload):
                 payload.power_rating_pct]
     if name == "uavcan.protocol.NodeStatus":
         return status(payload)
+    if name == "uavcan.equipment.device.Temperature":
+        return [payload.device_id, payload.temperature, payload.error_flags]
+    if name == "uavcan.protocol.dynamic_node_id.Allocation":
+        return [payload.node_id, payload.first_part_of_unique_id, list(payload.unique_id)]
     if name == "uavcan.protocol.GetNodeInfo":
         s = payload.software_version
         h = payload.hardware_version
@@ -182,6 +187,23 @@ fn the_bridges_frames_and_dronecans_agree_both_ways() {
         transfer_id: 5,
         payload: messages::encode_node_info(&info),
     };
+    // A node with no id asking for one: anonymous, its discriminator from the payload.
+    let request = allocation::encode(&allocation::Allocation {
+        node_id: 0,
+        first_part_of_unique_id: true,
+        unique_id: b"lj9da-".to_vec(),
+    });
+    let anonymous_request = Transfer {
+        id: CanId {
+            priority: 30,
+            kind: Kind::Message,
+            data_type_id: ALLOCATION.id,
+            source: 0,
+            discriminator: 0x1234,
+        },
+        transfer_id: 0,
+        payload: request,
+    };
     let sent = [
         (
             message(
@@ -215,8 +237,29 @@ fn the_bridges_frames_and_dronecans_agree_both_ways() {
             ACTUATOR_STATUS,
         ),
         (info_response, GET_NODE_INFO),
+        (
+            message(
+                42,
+                DEVICE_TEMPERATURE,
+                12,
+                messages::encode_device_temperature(&DeviceTemperature {
+                    device_id: 5,
+                    kelvin: 344.15,
+                    error_flags: messages::TEMPERATURE_OVERHEATING,
+                }),
+            ),
+            DEVICE_TEMPERATURE,
+        ),
+        (anonymous_request, ALLOCATION),
     ];
-    let types = [ARRAY_COMMAND, ACTUATOR_STATUS, NODE_STATUS, GET_NODE_INFO];
+    let types = [
+        ARRAY_COMMAND,
+        ACTUATOR_STATUS,
+        NODE_STATUS,
+        GET_NODE_INFO,
+        DEVICE_TEMPERATURE,
+        ALLOCATION,
+    ];
     let got = peer(json!({
         "types": types.iter().map(|t| t.name).collect::<Vec<_>>(),
         "decode": sent.iter().map(|(t, ty)| frames_json(&t.frames(ty.signature))).collect::<Vec<_>>(),
@@ -269,6 +312,16 @@ fn the_bridges_frames_and_dronecans_agree_both_ways() {
     assert_eq!(i["software"], json!([0, 1, 1, 0x8d7e_91a0u32]));
     assert_eq!(i["unique_id"], json!(b"lj9da-bridge-uid".to_vec()));
     assert_eq!(i["name"], json!("org.lj9da.bridge"));
+    let t = decoded[5]["fields"].as_array().unwrap();
+    assert_eq!((t[0].as_u64(), t[2].as_u64()), (Some(5), Some(1)));
+    let kelvin =
+        lj9da_bridge::dronecan::float16::to_f32(lj9da_bridge::dronecan::float16::from_f32(344.15));
+    assert!(close(t[1].as_f64().unwrap(), f64::from(kelvin)), "{t:?}");
+    assert_eq!(
+        decoded[6]["fields"],
+        json!([0, true, b"lj9da-".to_vec()]),
+        "the anonymous request"
+    );
 
     // dronecan's own frames, put back together and decoded by the bridge.
     let t0 = Instant::now();

@@ -1277,6 +1277,12 @@ fn each_command_followed(
 
 /// ArduPlane's own log: the CSRV rows (TimeUS, Id, Pos) of its newest `.bin` in `dir/logs`.
 fn csrv_rows(dir: &std::path::Path) -> Vec<(u64, u8, f64)> {
+    log_rows(dir, "CSRV", "Id", "Pos")
+}
+
+/// ArduPlane's own log: the rows of type `ty` of its newest `.bin` in `dir/logs`, as (TimeUS,
+/// field `id`, field `value`), read with pymavlink's DFReader.
+fn log_rows(dir: &std::path::Path, ty: &str, id: &str, value: &str) -> Vec<(u64, u8, f64)> {
     let logs = dir.join("logs");
     let mut bins: Vec<_> = std::fs::read_dir(&logs)
         .unwrap_or_else(|e| panic!("{}: {e}", logs.display()))
@@ -1285,7 +1291,9 @@ fn csrv_rows(dir: &std::path::Path) -> Vec<(u64, u8, f64)> {
         .collect();
     bins.sort();
     let bin = bins.last().expect("ArduPlane wrote a .bin log");
-    let script = "import sys\nfrom pymavlink import DFReader\nr = DFReader.DFReader_binary(sys.argv[1])\nwhile True:\n    m = r.recv_match(type='CSRV')\n    if m is None:\n        break\n    print(m.TimeUS, m.Id, repr(m.Pos))\n";
+    let script = format!(
+        "import sys\nfrom pymavlink import DFReader\nr = DFReader.DFReader_binary(sys.argv[1])\nwhile True:\n    m = r.recv_match(type='{ty}')\n    if m is None:\n        break\n    print(m.TimeUS, m.{id}, repr(m.{value}))\n"
+    );
     let out = std::process::Command::new(common::python::python())
         .arg("-c")
         .arg(script)
@@ -1437,7 +1445,11 @@ async fn arduplane_over_dronecan() {
     .expect("the page's node id is static");
     let listener = CanListener::start(node_id, &[ACTUATOR_STATUS, NODE_STATUS]);
     let tap = Tap::start(14560);
-    let (ap, _) = arduplane_on_can(&dir, "", 14560);
+    let temperatures = block_after(
+        DRONECAN_PAGE,
+        "<!-- sitl: ArduPlane's servo temperatures -->",
+    );
+    let (ap, _) = arduplane_on_can(&dir, &temperatures, 14560);
     tap.wait_for_autopilot(SECS(60), || ap.console());
 
     // The shipped example (its four surfaces on outputs 1, 2, 4 and 5, the page's
@@ -1533,7 +1545,7 @@ async fn arduplane_over_dronecan() {
     drop(gcs);
     let (ap, _) = arduplane_on_can(
         &dir,
-        "CAN_D1_UC_SRV_RT 200\nCAN_D1_UC_OPTION 0\nSCHED_LOOP_RATE 200\n",
+        &format!("CAN_D1_UC_SRV_RT 200\nCAN_D1_UC_OPTION 0\nSCHED_LOOP_RATE 200\n{temperatures}"),
         14560,
     );
     tap.wait_for_autopilot(SECS(60), || ap.console());
@@ -1559,5 +1571,63 @@ async fn arduplane_over_dronecan() {
     assert!(chain.sims[0].handle().overheat(4));
     let refusal = refused_for(&mut gcs, &format!("Node {node_id} unhealthy"), SECS(20));
     eprintln!("arming refused: {refusal}");
+    // The temperatures the bridge reads meanwhile, per servo (lowest, highest): the rudder's
+    // still rises.
+    let mut seen: std::collections::HashMap<String, (f32, f32)> = Default::default();
+    let sampling = Instant::now();
+    while sampling.elapsed() < SECS(3) {
+        for v in &chain.view.borrow().servos {
+            if let Some(t) = v.report.temperature_c {
+                let e = seen.entry(v.name.clone()).or_insert((t, t));
+                *e = (e.0.min(t), e.1.max(t));
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    // ArduPlane's TEMP rows, one temperature sensor per servo the page names, each at a
+    // temperature the bridge read of its servo in those 3 s (the rudder's over its alarm, the
+    // aileron's not: a sensor listening for the wrong id would log the other's).
+    let sensors: Vec<(u8, u8)> = temperatures
+        .lines()
+        .filter_map(|l| {
+            let (k, v) = l.split_once(' ')?;
+            let n: u8 = k
+                .strip_prefix("TEMP")?
+                .strip_suffix("_MSG_ID")?
+                .parse()
+                .ok()?;
+            Some((n - 1, v.trim().parse().ok()?))
+        })
+        .collect();
+    assert_eq!(sensors.len(), 2, "{temperatures}");
+    let temps = log_rows(&dir, "TEMP", "Instance", "Temp");
+    let mut reads = Vec::new();
+    for (instance, id) in sensors {
+        let s = cfg.servos.iter().find(|s| s.dronecan_id == id).unwrap();
+        let mine: Vec<f64> = temps
+            .iter()
+            .filter(|r| r.1 == instance)
+            .map(|r| r.2)
+            .collect();
+        assert!(
+            mine.len() >= 3,
+            "{}: {} TEMP rows of Instance {instance}",
+            s.name,
+            mine.len()
+        );
+        let (low, high) = *seen.get(&s.name).expect("a temperature read");
+        reads.push(high);
+        let logged = *mine.last().unwrap();
+        assert!(
+            f64::from(low) - 0.5 <= logged && logged <= f64::from(high) + 0.5,
+            "{}: TEMP {logged:.2} °C, the bridge read {low:.2}–{high:.2} °C",
+            s.name
+        );
+    }
+    assert!(
+        (reads[0] - reads[1]).abs() > 5.0,
+        "the two servos' temperatures tell them apart: {reads:?}"
+    );
+
     drop(ap);
 }

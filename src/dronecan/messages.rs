@@ -26,6 +26,13 @@ pub const ACTUATOR_STATUS: DataType = DataType {
     signature: 0x5E9B_BA44_FAF1_EA04,
 };
 
+/// `uavcan.equipment.device.Temperature`.
+pub const DEVICE_TEMPERATURE: DataType = DataType {
+    name: "uavcan.equipment.device.Temperature",
+    id: 1110,
+    signature: 0x7026_1C28_A941_44C6,
+};
+
 /// `uavcan.protocol.NodeStatus`.
 pub const NODE_STATUS: DataType = DataType {
     name: "uavcan.protocol.NodeStatus",
@@ -149,6 +156,39 @@ pub fn encode_actuator_status(s: &ActuatorStatus) -> Vec<u8> {
     w.put(0, 1);
     w.put(u64::from(s.power_rating_pct.min(POWER_RATING_UNKNOWN)), 7);
     w.finish()
+}
+
+/// `uavcan.equipment.device.Temperature`: one device's temperature.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DeviceTemperature {
+    pub device_id: u16,
+    /// Kelvin.
+    pub kelvin: f32,
+    /// [`TEMPERATURE_OVERHEATING`], [`TEMPERATURE_OVERCOOLING`].
+    pub error_flags: u8,
+}
+
+/// `error_flags`: the device is over its temperature limit.
+pub const TEMPERATURE_OVERHEATING: u8 = 1;
+/// `error_flags`: the device is under its temperature limit.
+pub const TEMPERATURE_OVERCOOLING: u8 = 2;
+
+pub fn encode_device_temperature(t: &DeviceTemperature) -> Vec<u8> {
+    let mut w = BitWriter::new();
+    w.put(u64::from(t.device_id), 16);
+    w.put(u64::from(float16::from_f32(t.kelvin)), 16);
+    w.put(u64::from(t.error_flags), 8);
+    w.finish()
+}
+
+pub fn decode_device_temperature(payload: &[u8]) -> Option<DeviceTemperature> {
+    let mut r = BitReader::new(payload);
+    let t = DeviceTemperature {
+        device_id: r.get(16) as u16,
+        kelvin: float16::to_f32(r.get(16) as u16),
+        error_flags: r.get(8) as u8,
+    };
+    (!r.short()).then_some(t)
 }
 
 pub fn decode_actuator_status(payload: &[u8]) -> Option<ActuatorStatus> {
@@ -285,6 +325,25 @@ mod tests {
         );
         assert_eq!(decode_array_command(&[1, 0, 0]), None);
         assert_eq!(decode_array_command(&[0; 64]), None);
+    }
+
+    #[test]
+    fn a_device_temperature_is_five_bytes_in_kelvin() {
+        let t = DeviceTemperature {
+            device_id: 0x0102,
+            kelvin: 273.15 + 26.0,
+            error_flags: TEMPERATURE_OVERHEATING,
+        };
+        let bytes = encode_device_temperature(&t);
+        assert_eq!(bytes.len(), 5);
+        // Little-endian fields, as DSDL packs a whole-byte field.
+        assert_eq!(&bytes[..2], &[0x02, 0x01]);
+        assert_eq!(bytes[4], 1);
+        let back = decode_device_temperature(&bytes).unwrap();
+        assert_eq!(back.device_id, 0x0102);
+        // float16 near 300 K: steps of 0.25 K.
+        assert!((back.kelvin - 299.15).abs() <= 0.125, "{back:?}");
+        assert_eq!(decode_device_temperature(&bytes[..4]), None);
     }
 
     #[test]

@@ -9,7 +9,8 @@
 //! - [`bits`]: DSDL's bit packing of scalars, and [`float16`] its half-precision floats.
 //! - [`messages`]: the data types the bridge speaks, each with its id and signature:
 //!   `uavcan.equipment.actuator.ArrayCommand` in, `uavcan.equipment.actuator.Status`,
-//!   `uavcan.protocol.NodeStatus` and `uavcan.protocol.GetNodeInfo` out.
+//!   `uavcan.equipment.device.Temperature`, `uavcan.protocol.NodeStatus` and
+//!   `uavcan.protocol.GetNodeInfo` out.
 //! - [`mcast`]: ArduPilot SITL's CAN bus over multicast UDP, a datagram per frame (the test
 //!   transport; SocketCAN is the aircraft's).
 //! - [`node`]: a node on those: ArrayCommand's commands out of the frames, GetNodeInfo

@@ -9,8 +9,8 @@
 use super::allocation::{self, ALLOCATION, Allocatee};
 use super::frame::{CanFrame, CanId, Kind};
 use super::messages::{
-    self, ACTUATOR_STATUS, ARRAY_COMMAND, ActuatorStatus, Command, DataType, GET_NODE_INFO, Health,
-    Mode, NODE_STATUS, NodeInfo, NodeStatus,
+    self, ACTUATOR_STATUS, ARRAY_COMMAND, ActuatorStatus, Command, DEVICE_TEMPERATURE, DataType,
+    DeviceTemperature, GET_NODE_INFO, Health, Mode, NODE_STATUS, NodeInfo, NodeStatus,
 };
 use super::transfer::{Reassembler, Transfer, TransferError};
 use std::collections::{HashMap, VecDeque};
@@ -245,6 +245,12 @@ impl Node {
     pub fn send_actuator_status(&mut self, status: &ActuatorStatus) {
         let payload = messages::encode_actuator_status(status);
         self.broadcast(ACTUATOR_STATUS, PRIORITY_STATUS, payload);
+    }
+
+    /// Broadcast `t`, a device's temperature.
+    pub fn send_device_temperature(&mut self, t: &DeviceTemperature) {
+        let payload = messages::encode_device_temperature(t);
+        self.broadcast(DEVICE_TEMPERATURE, PRIORITY_LOW, payload);
     }
 
     /// A message from this node; dropped while it has no id (an anonymous node sends only its
