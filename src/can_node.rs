@@ -25,7 +25,7 @@ use crate::dronecan::frame::CanFrame;
 use crate::dronecan::messages::{
     ActuatorStatus, DeviceTemperature, Health, POWER_RATING_UNKNOWN, TEMPERATURE_OVERHEATING,
 };
-use crate::dronecan::node::{Commands, Identity, Node, Refused};
+use crate::dronecan::node::{Commands, Identity, Node, Refused, take_due};
 use crate::mavlink::{ServoReport, ServoState};
 use std::time::{Duration, Instant};
 
@@ -90,10 +90,7 @@ impl CanNode {
     pub fn handle_timeout(&mut self, now: Instant, reports: &[ServoReport]) {
         let (health, unwell) = health(reports);
         self.node.set_health(health, unwell);
-        if now >= self.next_status {
-            while self.next_status <= now {
-                self.next_status += self.period;
-            }
+        if take_due(&mut self.next_status, self.period, now) {
             for (id, r) in self.ids.iter().zip(reports) {
                 let Some(mm) = r.position_mm else {
                     continue;
@@ -107,10 +104,7 @@ impl CanNode {
                 });
             }
         }
-        if now >= self.next_temperature {
-            while self.next_temperature <= now {
-                self.next_temperature += TEMPERATURE_PERIOD;
-            }
+        if take_due(&mut self.next_temperature, TEMPERATURE_PERIOD, now) {
             for (id, r) in self.ids.iter().zip(reports) {
                 let Some(celsius) = r.temperature_c else {
                     continue;

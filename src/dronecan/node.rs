@@ -294,12 +294,8 @@ impl Node {
             }
             return;
         }
-        if now < self.next_status {
+        if !take_due(&mut self.next_status, NODE_STATUS_PERIOD, now) {
             return;
-        }
-        // The period keeps its phase; a node held up for several periods sends one.
-        while self.next_status <= now {
-            self.next_status += NODE_STATUS_PERIOD;
         }
         let payload = messages::encode_node_status(&self.status_at(now));
         self.broadcast(NODE_STATUS, PRIORITY_LOW, payload);
@@ -317,6 +313,19 @@ impl Node {
     pub fn pop_frame(&mut self) -> Option<CanFrame> {
         self.outgoing.pop_front()
     }
+}
+
+/// Whether something due at `*next` every `period` is due at `now`; if so `*next` moves on to
+/// the first time after `now`. The period keeps its phase: a caller held up for several periods
+/// does the thing once.
+pub fn take_due(next: &mut Instant, period: Duration, now: Instant) -> bool {
+    if now < *next {
+        return false;
+    }
+    while *next <= now {
+        *next += period;
+    }
+    true
 }
 
 #[cfg(test)]
